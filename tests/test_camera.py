@@ -1,0 +1,144 @@
+"""Camera: projection identities, batching, degenerate views, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxgfx.camera import (
+    Camera,
+    camera_basis,
+    camera_from_degrees,
+    camera_matrix,
+    look_at,
+    orbit_cameras,
+    pixel_rays,
+    project,
+    stack_cameras,
+    view_matrix,
+)
+
+TOL = 1e-4
+
+CAMS = [
+    dict(position=[1.0, 2.0, -3.0], yaw=30.0, pitch=-20.0, roll=0.0),
+    dict(position=[0.0, 0.0, 0.0], yaw=-135.0, pitch=45.0, roll=10.0),
+    dict(position=[5.0, 10.0, 5.0], yaw=0.0, pitch=-90.0, roll=0.0),  # straight down
+    dict(position=[0.0, 1.0, 0.0], yaw=0.0, pitch=90.0, roll=0.0),  # straight up
+]
+
+
+@pytest.mark.parametrize("kw", CAMS)
+def test_basis_orthonormal_and_right_handed_screen(kw):
+    cam = camera_from_degrees(width=32, height=24, **kw)
+    r, u, f = (np.asarray(v) for v in camera_basis(cam))
+    m = np.stack([r, u, f])
+    np.testing.assert_allclose(m @ m.T, np.eye(3), atol=TOL)
+    assert np.all(np.isfinite(m))
+    # x right, y up, z forward is a left-handed frame in a right-handed world.
+    np.testing.assert_allclose(np.cross(r, u), -f, atol=TOL)
+
+
+def test_conventions_yaw_pitch():
+    cam = camera_from_degrees([0, 0, 0], yaw=0.0, pitch=0.0)
+    np.testing.assert_allclose(camera_basis(cam)[2], [0, 0, 1], atol=1e-6)
+    cam = camera_from_degrees([0, 0, 0], yaw=90.0, pitch=0.0)
+    np.testing.assert_allclose(camera_basis(cam)[2], [1, 0, 0], atol=1e-6)
+    cam = camera_from_degrees([0, 0, 0], yaw=0.0, pitch=30.0)
+    assert float(camera_basis(cam)[2][1]) > 0.49  # positive pitch looks up
+    # A point up and ahead lands in the upper half of the image (row < H/2).
+    xy, depth = project(
+        camera_from_degrees([0, 0, 0], width=64, height=48), jnp.array([0.0, 1.0, 5.0])
+    )
+    assert float(xy[1]) < 24 and float(depth) == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize("kw", CAMS)
+def test_pixel_rays_project_back_to_pixel_centres(kw):
+    cam = camera_from_degrees(width=16, height=12, **kw)
+    o, d = pixel_rays(cam, normalize=False)
+    pts = o + 7.0 * d  # depth 7 along the view axis when not normalised
+    xy, depth = project(cam, pts.reshape(-1, 3))
+    jj, ii = np.meshgrid(np.arange(12), np.arange(16), indexing="ij")
+    expect = np.stack([ii + 0.5, jj + 0.5], -1).reshape(-1, 2)
+    np.testing.assert_allclose(xy, expect, atol=1e-3)
+    np.testing.assert_allclose(depth, 7.0, rtol=1e-5)
+
+
+def test_camera_matrix_matches_project():
+    cam = camera_from_degrees([1, 2, 3], 20, -10, 5, 50, 40, 30, 0.1, 100.0)
+    pts = jnp.array([[2.0, 1.5, 9.0], [0.0, 2.0, 6.0]])
+    clip = jnp.concatenate([pts, jnp.ones((2, 1))], 1) @ camera_matrix(cam).T
+    ndc = clip[:, :3] / clip[:, 3:]
+    xy, depth = project(cam, pts)
+    px = (ndc[:, 0] + 1) * 0.5 * cam.width
+    py = (1 - ndc[:, 1]) * 0.5 * cam.height
+    np.testing.assert_allclose(np.stack([px, py], -1), xy, atol=1e-3)
+    np.testing.assert_allclose(clip[:, 3], depth, rtol=1e-5)
+    v = view_matrix(cam)
+    np.testing.assert_allclose(v[:3, :3] @ v[:3, :3].T, np.eye(3), atol=TOL)
+
+
+def test_look_at_straight_down_and_up_finite():
+    cam = look_at([0, 10, 0], [0, 0, 0], width=8, height=8)
+    f = np.asarray(camera_basis(cam)[2])
+    np.testing.assert_allclose(f, [0, -1, 0], atol=1e-6)
+    cam = look_at([0, 0, 0], [0, 5, 0], width=8, height=8)
+    assert np.all(np.isfinite(np.asarray(pixel_rays(cam)[1])))
+
+
+def test_jit_and_vmap_agree_with_loop():
+    cams = orbit_cameras([0, 0, 0], 5.0, 5, width=8, height=6)
+    pts = jnp.array([[0.3, 0.2, -0.1], [1.0, -1.0, 0.5]])
+    batched = jax.jit(jax.vmap(project, in_axes=(0, None)))(cams, pts)
+    for k in range(5):
+        one = jax.tree_util.tree_map(lambda x, k=k: x[k], cams)
+        xy, d = project(one, pts)
+        np.testing.assert_allclose(batched[0][k], xy, atol=1e-4)
+        np.testing.assert_allclose(batched[1][k], d, atol=1e-5)
+    # every orbit camera looks at the centre: it projects to the image centre
+    c = jax.vmap(project, in_axes=(0, None))(cams, jnp.zeros(3))
+    np.testing.assert_allclose(c[0], np.tile([4.0, 3.0], (5, 1)), atol=1e-3)
+    np.testing.assert_allclose(c[1], 5.0, rtol=1e-5)
+
+
+def test_camera_is_pytree_with_static_resolution():
+    cam = camera_from_degrees([0, 0, 0], width=10, height=7)
+    leaves, tree = jax.tree_util.tree_flatten(cam)
+    assert len(leaves) == 7
+    back = jax.tree_util.tree_unflatten(tree, leaves)
+    assert isinstance(back, Camera) and back.shape == (7, 10)
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(width=0), "width"),
+        (dict(height=-3), "height"),
+        (dict(width=2.5), "width"),
+        (dict(fov=0.0), "fov_y"),
+        (dict(fov=180.0), "fov_y"),
+        (dict(near=0.0), "near"),
+        (dict(near=2.0, far=1.0), "far"),
+        (dict(position=[0, math.nan, 0]), "position"),
+        (dict(position=[0, 0]), "position"),
+    ],
+)
+def test_bad_camera_input(kw, match):
+    args = dict(position=[0, 0, 0])
+    args.update(kw)
+    with pytest.raises((ValueError, TypeError), match=match):
+        camera_from_degrees(**args)
+
+
+def test_stack_rejects_mixed_resolution():
+    with pytest.raises(ValueError, match="resolution"):
+        stack_cameras(
+            [camera_from_degrees([0, 0, 0], width=4), camera_from_degrees([0, 0, 0], width=5)]
+        )
+    with pytest.raises(ValueError, match="distinct"):
+        look_at([1, 1, 1], [1, 1, 1])
