@@ -41,6 +41,7 @@ __all__ = [
     "ClippedTriangles",
     "TriangleSetup",
     "validate_mesh",
+    "corners_soa",
     "clip_near",
     "triangle_setup",
     "visibility",
@@ -65,26 +66,33 @@ class RasterOutput(NamedTuple):
 
 
 class ClippedTriangles(NamedTuple):
-    """Triangles after near-plane clipping; two output slots per input face."""
+    """Triangles after near-plane clipping; two output slots per input face.
 
-    verts: jax.Array  # (2F, 3, 3) camera-space vertices
+    Structure-of-arrays layout (the face axis last) so that XLA vectorises the
+    per-triangle arithmetic.
+    """
+
+    verts: jax.Array  # (3 coords, 3 corners, 2F) camera-space vertices
     valid: jax.Array  # (2F,) bool
     source: jax.Array  # (2F,) int32 index of the input face
 
 
 class TriangleSetup(NamedTuple):
-    """Per-triangle screen-space data used by the coverage test."""
+    """Per-triangle screen-space data, structure-of-arrays (triangle axis last).
 
-    edge_a: jax.Array  # (T, 3, 2) canonical start point of each edge
-    edge_d: jax.Array  # (T, 3, 2) canonical edge direction
-    edge_sign: jax.Array  # (T, 3) +1/-1: side of the canonical edge that is inside
-    w0: jax.Array  # (T,) 1/z at vertex 0
-    w_grad: jax.Array  # (T, 2) d(1/z)/d(x, y) on screen
-    s0: jax.Array  # (T, 2) screen position of vertex 0
-    lo: jax.Array  # (T, 2) int32 first covered pixel column/row (bbox)
-    nblocks_x: jax.Array  # (T,) int32 tiles along x
+    Kept SoA on purpose: a (T, 20) layout would need a transpose of the whole
+    array, which costs more on XLA:CPU than gathering 20 rows per work item.
+    """
+
+    packed: jax.Array  # (20, T) float32, rows as in the _AX.._S0Y constants
+    ints: jax.Array  # (6, T) int32 rows: lo_x, lo_y, hi_x, hi_y, nblocks_x, source face
     nblocks: jax.Array  # (T,) int32 tiles in the bbox, 0 for culled triangles
-    hi: jax.Array  # (T, 2) int32 last pixel column/row (bbox)
+
+
+# Column layout of TriangleSetup.packed: canonical edge start (ax, ay), edge
+# direction (dx, dy) and inside sign for the 3 edges, then the 1/z plane.
+_AX, _AY, _DX, _DY, _SG = 0, 3, 6, 9, 12
+_W0, _GX, _GY, _S0X, _S0Y = 15, 16, 17, 18, 19
 
 
 def validate_mesh(vertices, faces, attributes=None) -> None:
@@ -123,6 +131,12 @@ def validate_mesh(vertices, faces, attributes=None) -> None:
             raise ValueError("attributes must be finite")
 
 
+def corners_soa(cam: Camera, vertices: jax.Array, faces: jax.Array) -> jax.Array:
+    """Camera-space triangle corners as (3 coords, 3 corners, F)."""
+    pc = world_to_camera(cam, vertices).T  # (3, V)
+    return pc[:, faces.T]
+
+
 def clip_near(p_cam: jax.Array, near: jax.Array) -> ClippedTriangles:
     """Clips camera-space triangles against the plane ``z = near``.
 
@@ -132,42 +146,45 @@ def clip_near(p_cam: jax.Array, near: jax.Array) -> ClippedTriangles:
     endpoints, so neighbours sharing the edge get the identical point.
 
     Args:
-        p_cam: (F, 3, 3) camera-space triangle vertices.
+        p_cam: (3 coords, 3 corners, F) camera-space triangle vertices.
         near: () near-plane distance.
 
     Returns:
         :class:`ClippedTriangles` with 2F slots.
     """
-    f = p_cam.shape[0]
-    inside = p_cam[..., 2] >= near  # (F, 3)
-    n_in = inside.sum(-1)
+    f = p_cam.shape[-1]
+    inside = p_cam[2] >= near  # (3, F)
+    n_in = inside.sum(0)
     # Rotate so the odd vertex (the lone inside one, or the lone outside one)
     # comes first; a cyclic rotation keeps the winding.
-    odd = jnp.where((n_in == 1)[:, None], inside, ~inside)
-    k = jnp.argmax(odd, axis=-1)
-    idx = (k[:, None] + jnp.arange(3)[None, :]) % 3
-    v = jnp.take_along_axis(p_cam, idx[..., None], axis=1)
-    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+    odd = jnp.where(n_in == 1, inside, ~inside)
+    k = jnp.where(odd[0], 0, jnp.where(odd[1], 1, 2))
+
+    def corner(j):  # corner (k + j) % 3, as (3 coords, F)
+        c0, c1, c2 = p_cam[:, j % 3], p_cam[:, (j + 1) % 3], p_cam[:, (j + 2) % 3]
+        return jnp.where(k == 0, c0, jnp.where(k == 1, c1, c2))
+
+    v0, v1, v2 = corner(0), corner(1), corner(2)
 
     def cut(p_in, p_out):
-        dz = p_out[..., 2] - p_in[..., 2]
+        dz = p_out[2] - p_in[2]
         safe = jnp.where(jnp.abs(dz) > 0, dz, 1.0)
-        t = jnp.clip((near - p_in[..., 2]) / safe, 0.0, 1.0)
-        q = p_in + t[..., None] * (p_out - p_in)
-        return q.at[..., 2].set(jnp.maximum(q[..., 2], near))
+        t = jnp.clip((near - p_in[2]) / safe, 0.0, 1.0)
+        q = p_in + t * (p_out - p_in)
+        return q.at[2].set(jnp.maximum(q[2], near))
 
-    # one inside (v0 in): (v0, I01, I02)
-    one = jnp.stack([v0, cut(v0, v1), cut(v0, v2)], axis=1)
-    # two inside (v0 out): (I01, v1, v2) and (I01, v2, I20)
     i01 = cut(v1, v0)
     i20 = cut(v2, v0)
-    two_a = jnp.stack([i01, v1, v2], axis=1)
+    one = (v0, cut(v0, v1), cut(v0, v2))  # one inside (v0): (v0, I01, I02)
+    two_a = (i01, v1, v2)  # two inside (v0 out): (I01, v1, v2) + (I01, v2, I20)
     two_b = jnp.stack([i01, v2, i20], axis=1)
-    first = jnp.where(
-        (n_in == 3)[:, None, None], p_cam, jnp.where((n_in == 1)[:, None, None], one, two_a)
+    all_in, one_in = n_in == 3, n_in == 1
+    first = jnp.stack(
+        [jnp.where(all_in, p_cam[:, j], jnp.where(one_in, one[j], two_a[j])) for j in range(3)],
+        axis=1,
     )
-    verts = jnp.concatenate([first, two_b], axis=0)
-    valid = jnp.concatenate([n_in > 0, n_in == 2], axis=0)
+    verts = jnp.concatenate([first, two_b], axis=-1)
+    valid = jnp.concatenate([n_in > 0, n_in == 2])
     source = jnp.concatenate([jnp.arange(f, dtype=jnp.int32)] * 2)
     return ClippedTriangles(verts, valid, source)
 
@@ -184,110 +201,87 @@ def triangle_setup(
         block: tile edge length in pixels.
     """
     fl = focal_length(cam)
-    z = tris.verts[..., 2]
-    s = jnp.stack(
-        [
-            0.5 * cam.width + fl * tris.verts[..., 0] / z,
-            0.5 * cam.height - fl * tris.verts[..., 1] / z,
-        ],
-        axis=-1,
-    )  # (T, 3, 2)
-    s = jnp.where(tris.valid[:, None, None], s, 0.0)
-    p = s
-    q = jnp.roll(s, -1, axis=1)  # edge i goes p_i -> p_{i+1}
+    x, y, z = tris.verts[0], tris.verts[1], tris.verts[2]  # (3 corners, T)
+    z = jnp.where(tris.valid, z, 1.0)
+    sx = jnp.where(tris.valid, 0.5 * cam.width + fl * x / z, 0.0)
+    sy = jnp.where(tris.valid, 0.5 * cam.height - fl * y / z, 0.0)
+    qx, qy = jnp.roll(sx, -1, axis=0), jnp.roll(sy, -1, axis=0)  # edge i: p_i -> p_{i+1}
     # Canonical direction: start at the endpoint lower on screen (larger y),
     # ties broken by smaller x, so both owners of an edge agree bit for bit.
-    p_first = (p[..., 1] > q[..., 1]) | ((p[..., 1] == q[..., 1]) & (p[..., 0] < q[..., 0]))
-    a = jnp.where(p_first[..., None], p, q)
-    b = jnp.where(p_first[..., None], q, p)
-    d = b - a
-    e1 = s[:, 1] - s[:, 0]
-    e2 = s[:, 2] - s[:, 0]
-    area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    orient = jnp.sign(area2)
-    edge_sign = jnp.where(p_first, 1.0, -1.0) * orient[:, None]
+    p_first = (sy > qy) | ((sy == qy) & (sx < qx))
+    ax, ay = jnp.where(p_first, sx, qx), jnp.where(p_first, sy, qy)
+    dx, dy = jnp.where(p_first, qx, sx) - ax, jnp.where(p_first, qy, sy) - ay
+    e1x, e1y = sx[1] - sx[0], sy[1] - sy[0]
+    e2x, e2y = sx[2] - sx[0], sy[2] - sy[0]
+    area2 = e1x * e2y - e1y * e2x
+    sign = jnp.where(p_first, 1.0, -1.0) * jnp.sign(area2)
     safe_area = jnp.where(area2 != 0, area2, 1.0)
     w = 1.0 / z
-    dw1 = w[:, 1] - w[:, 0]
-    dw2 = w[:, 2] - w[:, 0]
-    w_grad = (
-        jnp.stack([(dw1 * e2[:, 1] - dw2 * e1[:, 1]), (dw2 * e1[:, 0] - dw1 * e2[:, 0])], axis=-1)
-        / safe_area[:, None]
-    )
-    mn = jnp.min(s, axis=1)
-    mx = jnp.max(s, axis=1)
-    size = jnp.array([cam.width, cam.height], jnp.float32)
-    # Pixel i is covered only if its centre i + 0.5 lies in [mn, mx].
-    lo_f = jnp.clip(jnp.ceil(mn - 0.5), 0.0, size)
-    hi_f = jnp.clip(jnp.floor(mx - 0.5), -1.0, size - 1.0)
-    lo = lo_f.astype(jnp.int32)
-    hi = hi_f.astype(jnp.int32)
-    ext = jnp.maximum(hi - lo + 1, 0)
-    nbx = (ext[:, 0] + block - 1) // block
-    nby = (ext[:, 1] + block - 1) // block
-    alive = tris.valid & keep & (area2 != 0) & (ext[:, 0] > 0) & (ext[:, 1] > 0)
+    dw1, dw2 = w[1] - w[0], w[2] - w[0]
+    gx = (dw1 * e2y - dw2 * e1y) / safe_area
+    gy = (dw2 * e1x - dw1 * e2x) / safe_area
+    # Pixel i is covered only if its centre i + 0.5 lies in [min, max].
+    lo_x = jnp.clip(jnp.ceil(jnp.min(sx, 0) - 0.5), 0.0, cam.width).astype(jnp.int32)
+    lo_y = jnp.clip(jnp.ceil(jnp.min(sy, 0) - 0.5), 0.0, cam.height).astype(jnp.int32)
+    hi_x = jnp.clip(jnp.floor(jnp.max(sx, 0) - 0.5), -1.0, cam.width - 1.0).astype(jnp.int32)
+    hi_y = jnp.clip(jnp.floor(jnp.max(sy, 0) - 0.5), -1.0, cam.height - 1.0).astype(jnp.int32)
+    ext_x = jnp.maximum(hi_x - lo_x + 1, 0)
+    ext_y = jnp.maximum(hi_y - lo_y + 1, 0)
+    nbx = (ext_x + block - 1) // block
+    nby = (ext_y + block - 1) // block
+    alive = tris.valid & keep & (area2 != 0) & (ext_x > 0) & (ext_y > 0)
     nblocks = jnp.where(alive, nbx * nby, 0).astype(jnp.int32)
-    return TriangleSetup(
-        edge_a=a,
-        edge_d=d,
-        edge_sign=edge_sign,
-        w0=w[:, 0],
-        w_grad=w_grad,
-        s0=s[:, 0],
-        lo=lo,
-        nblocks_x=jnp.maximum(nbx, 1).astype(jnp.int32),
-        nblocks=nblocks,
-        hi=hi,
+    packed = jnp.concatenate(
+        [ax, ay, dx, dy, sign, jnp.stack([w[0], gx, gy, sx[0], sy[0]])], axis=0
     )
+    ints = jnp.stack([lo_x, lo_y, hi_x, hi_y, jnp.maximum(nbx, 1), tris.source], axis=0)
+    return TriangleSetup(packed, ints.astype(jnp.int32), nblocks)
 
 
-def _chunk_fragments(cam, setup, source, starts, offsets, total, chunk0, chunk, block):
-    """Fragments of work items ``chunk0 .. chunk0+chunk``: (pixel index, 1/z, face id)."""
+def _chunk_fragments(cam, setup, starts, offsets, total, chunk0, chunk, block):
+    """Fragments of work items ``chunk0 .. chunk0+chunk``: (pixel index, 1/z, face id, ok)."""
     item = chunk0 + jnp.arange(chunk, dtype=jnp.int32)
     live = item < total
     t = jnp.searchsorted(offsets, item, side="right").astype(jnp.int32)
     t = jnp.minimum(t, offsets.shape[0] - 1)
+    row = jnp.take(setup.packed, t, axis=1)  # (20, K)
+    irow = jnp.take(setup.ints, t, axis=1)  # (6, K)
     local = item - starts[t]
-    nbx = setup.nblocks_x[t]
-    bx = local % nbx
-    by = local // nbx
-    x0 = setup.lo[t, 0] + bx * block
-    y0 = setup.lo[t, 1] + by * block
+    nbx = irow[4]
+    x0 = irow[0] + (local % nbx) * block
+    y0 = irow[1] + (local // nbx) * block
     off = jnp.arange(block, dtype=jnp.int32)
     px = x0[:, None, None] + off[None, None, :]  # (K, 1, B)
     py = y0[:, None, None] + off[None, :, None]  # (K, B, 1)
     px, py = jnp.broadcast_arrays(px, py)  # (K, B, B)
     cx = px.astype(jnp.float32) + 0.5
     cy = py.astype(jnp.float32) + 0.5
-    a = setup.edge_a[t][:, None, None]  # (K,1,1,3,2)
-    d = setup.edge_d[t][:, None, None]
-    e = d[..., 0] * (cy[..., None] - a[..., 1]) - d[..., 1] * (cx[..., None] - a[..., 0])
-    sgn = setup.edge_sign[t][:, None, None]
-    v = sgn * e
-    # Top-left rule: a centre exactly on an edge belongs to the triangle on
-    # the edge's canonical "+" side only.
-    inside = jnp.all((v > 0) | ((v == 0) & (sgn > 0)), axis=-1)
-    w = (
-        setup.w0[t][:, None, None]
-        + setup.w_grad[t, 0][:, None, None] * (cx - setup.s0[t, 0][:, None, None])
-        + setup.w_grad[t, 1][:, None, None] * (cy - setup.s0[t, 1][:, None, None])
-    )
+
+    def col(i):
+        return row[i][:, None, None]
+
+    inside = live[:, None, None]
+    for e in range(3):
+        v = col(_SG + e) * (col(_DX + e) * (cy - col(_AY + e)) - col(_DY + e) * (cx - col(_AX + e)))
+        # Top-left rule: a centre exactly on an edge belongs to the triangle
+        # on the edge's canonical "+" side only.
+        inside = inside & ((v > 0) | ((v == 0) & (col(_SG + e) > 0)))
+    w = col(_W0) + col(_GX) * (cx - col(_S0X)) + col(_GY) * (cy - col(_S0Y))
     ok = (
-        live[:, None, None]
-        & inside
-        & (px <= setup.hi[t, 0][:, None, None])
-        & (py <= setup.hi[t, 1][:, None, None])
+        inside
+        & (px <= irow[2][:, None, None])
+        & (py <= irow[3][:, None, None])
         & (w <= 1.0 / cam.near)
         & (w >= 1.0 / cam.far)
     )
     npix = cam.width * cam.height
     pix = jnp.where(ok, py * cam.width + px, npix)
-    fid = jnp.broadcast_to(source[t][:, None, None], pix.shape)
+    fid = jnp.broadcast_to(irow[5][:, None, None], pix.shape)
     return pix.reshape(-1), w.reshape(-1), fid.reshape(-1), ok.reshape(-1)
 
 
 def visibility(
-    cam: Camera, setup: TriangleSetup, source: jax.Array, block: int, chunk: int
+    cam: Camera, setup: TriangleSetup, block: int, chunk: int
 ) -> tuple[jax.Array, jax.Array]:
     """Nearest face per pixel by a chunked z-buffer over (triangle, tile) work items.
 
@@ -301,9 +295,7 @@ def visibility(
     total = offsets[-1] if offsets.shape[0] else jnp.int32(0)
 
     def fragments(c0):
-        pix, w, fid, ok = _chunk_fragments(
-            cam, setup, source, starts, offsets, total, c0, chunk, block
-        )
+        pix, w, fid, ok = _chunk_fragments(cam, setup, starts, offsets, total, c0, chunk, block)
         # The z-buffer holds the bit patterns of 1/z as int32: for positive
         # floats they order like the values and an integer max is exact.
         wb = jax.lax.bitcast_convert_type(jnp.where(ok, w, 0.0), jnp.int32)
@@ -360,8 +352,7 @@ def coverage_count(
     validate_mesh(vertices, faces)
     vertices = jnp.asarray(vertices, jnp.float32)
     faces = jnp.asarray(faces, jnp.int32)
-    p_cam = world_to_camera(cam, vertices)[faces]
-    tris = clip_near(p_cam, cam.near)
+    tris = clip_near(corners_soa(cam, vertices, faces), cam.near)
     setup = triangle_setup(cam, tris, jnp.ones(tris.valid.shape, bool), block)
     offsets = jnp.cumsum(setup.nblocks)
     starts = offsets - setup.nblocks
@@ -370,9 +361,7 @@ def coverage_count(
 
     def body(state):
         c0, acc = state
-        pix, _, _, ok = _chunk_fragments(
-            cam, setup, tris.source, starts, offsets, total, c0, chunk, block
-        )
+        pix, _, _, ok = _chunk_fragments(cam, setup, starts, offsets, total, c0, chunk, block)
         return c0 + chunk, acc.at[pix].add(ok.astype(jnp.int32), mode="drop")
 
     _, acc = jax.lax.while_loop(
@@ -481,8 +470,8 @@ def rasterize(
             jnp.full((h, w), -1, jnp.int32),
             jnp.zeros((h, w, 3), jnp.float32),
         )
-    p_cam = world_to_camera(cam, vertices)[faces]  # (F, 3, 3)
-    tris = clip_near(p_cam, cam.near)
+    p_cam = world_to_camera(cam, vertices)[faces]  # (F, 3, 3) for the per-pixel resolve
+    tris = clip_near(corners_soa(cam, vertices, faces), cam.near)
     if cull_backfaces:
         tri_w = vertices[faces]
         n = jnp.cross(tri_w[:, 1] - tri_w[:, 0], tri_w[:, 2] - tri_w[:, 0])
@@ -491,7 +480,7 @@ def rasterize(
     else:
         keep = jnp.ones(tris.valid.shape, bool)
     setup = triangle_setup(cam, tris, keep, block)
-    inv_depth, face_id = visibility(cam, setup, tris.source, block, chunk)
+    inv_depth, face_id = visibility(cam, setup, block, chunk)
     depth, tri_id, bary = resolve(cam, p_cam, inv_depth, face_id)
     color = interpolate(attributes, faces, tri_id, bary)
     return RasterOutput(color, depth, tri_id, bary)
