@@ -1,0 +1,267 @@
+"""Table 3.1 of the thesis: Clip-Box update and render times, polygons, memory.
+
+Upper part (one resolution N, L levels): per level, ms per update for procedural
+generation (differential, 3.4.6), voxels -> polygons, smoothing, surface normals,
+welding; polygons per level; render ms per level.  Lower part (N = 64 ... 192):
+average time to update one box along a fly path, the time to rebuild one box
+from scratch (sampling + faces + smoothing + normals: the <= 100 ms target at
+N = 128), render time for all levels, total polygons, memory of the state.
+
+The terrain is the thesis's benchmark kind: 50 000 random CSG operations (3.5.2).
+Compile time is reported apart: the fly path runs twice and only the second run
+(same shapes, no compilation) is timed.
+
+    python experiments/clipbox_table.py --quick --out out/clipbox_table
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import jax
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _terrain_common import machine, write_table  # noqa: E402
+
+from jaxgfx import terrain as T  # noqa: E402
+from jaxgfx.camera import camera_from_degrees  # noqa: E402
+from jaxgfx.raster import rasterize  # noqa: E402
+
+STAGES = ("generation_ms", "polygons_ms", "smoothing_ms", "normals_ms", "welding_ms")
+
+
+def fly_path(steps: int, step: int) -> list[np.ndarray]:
+    return [np.array([100 + (i * step) // 3, 24, 50 + i * step]) for i in range(steps + 1)]
+
+
+def run_path(pipe, path):
+    st = pipe.init(path[0])
+    per_level: dict[int, list[dict]] = {}
+    t_moves = []
+    for v in path[1:]:
+        t0 = time.perf_counter()
+        st, stats = pipe.update(st, v, timings=True)
+        dt = time.perf_counter() - t0
+        if stats:
+            t_moves.append((dt, len(stats)))
+        for lvl, s in stats.items():
+            per_level.setdefault(lvl, []).append(s)
+    return st, per_level, t_moves
+
+
+def padded_faces(f: np.ndarray, size: int) -> np.ndarray:
+    out = np.zeros((size, 3), np.int32)  # degenerate (0, 0, 0) triangles draw nothing
+    out[: f.shape[0]] = f
+    return out
+
+
+def render_times(st, viewer, width, height, raster):
+    """ms to draw each level alone and all levels together (steady state).
+
+    Each mesh is padded with degenerate triangles to its own power of two, so a
+    few shapes are compiled and the padding costs at most 2x.
+    """
+    levels = T.level_views(st)
+    cam = camera_from_degrees((0.0, 0.0, 0.0), 0, -15, 0, 60, width, height, 0.5, 1e5)
+    arrays = [T.level_arrays([lv], viewer) for lv in levels]
+    arrays.append(T.level_arrays(levels, viewer))
+    out = []
+    for v, n, f, _ in arrays:
+        cap = 1 << int(np.ceil(np.log2(f.shape[0] + 2)))
+        vcap = 1 << int(np.ceil(np.log2(v.shape[0] + 2)))
+        vv = np.zeros((vcap, 3), np.float32)
+        vv[: v.shape[0]] = v
+        nn = np.zeros((vcap, 3), np.float32)
+        nn[: n.shape[0]] = n
+        args = (cam, vv, padded_faces(f, cap), nn)
+        jax.block_until_ready(raster(*args))
+        ts = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            jax.block_until_ready(raster(*args))
+            ts.append(time.perf_counter() - t0)
+        out.append((1e3 * min(ts), int(f.shape[0])))
+    return out[:-1], out[-1]
+
+
+def memory_mb(st) -> float:
+    leaves = jax.tree_util.tree_leaves(st)
+    return sum(x.nbytes for x in leaves) / 2**20
+
+
+def full_box_ms(pipe, st, repeats=3) -> tuple[float, float]:
+    """(sampling ms, polygons + smoothing + normals ms) of one level-0 box from scratch."""
+    box = st.boxes[0]
+    ts = []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        b = jax.block_until_ready(
+            pipe.sample_fn(pipe.terrain, box.origin, box.level, size=pipe.size)
+        )
+        t1 = time.perf_counter()
+        pipe.build_mesh(b, seam=pipe.levels > 1)
+        ts.append((t1 - t0, time.perf_counter() - t1))
+    ts = np.asarray(ts[1:])
+    return 1e3 * float(np.median(ts[:, 0])), 1e3 * float(np.median(ts[:, 1]))
+
+
+def subdivision_ms(pipe, st, lvl: int, key) -> tuple[float, int]:
+    """Steady ms of subdivision + random midpoint displacement of one level (3.4.7)."""
+    m = st.meshes[lvl]
+    if lvl > 0:
+        inner = st.boxes[lvl - 1]
+        vis = T.visible_faces(m, inner.origin, inner.size << (lvl - 1))
+    else:
+        vis = m.face_valid
+    args = dict(key=key, amplitude=0.25, visible=vis)
+    jax.block_until_ready(pipe.subdivide_fn(m, **args))
+    ts = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(pipe.subdivide_fn(m, **args))
+        ts.append(time.perf_counter() - t0)
+    return 1e3 * min(ts), int(np.asarray(out.face_valid).sum())
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, under a minute")
+    ap.add_argument("--out", default=None, help="write table.md / table.json here")
+    ap.add_argument("--levels", type=int, default=None)
+    args = ap.parse_args(argv)
+    quick = args.quick
+    levels = args.levels or (3 if quick else 7)
+    detail_n = 32 if quick else 128
+    sizes = (32, 48) if quick else (64, 96, 128, 160, 192)
+    steps = 6 if quick else 24
+    width, height = (160, 120) if quick else (640, 480)
+    print("machine:", machine())
+    t0 = time.perf_counter()
+    csg = T.random_csg_terrain(key=jax.random.PRNGKey(0), count=5_000 if quick else 50_000)
+    print(
+        f"terrain: {csg.centers.shape[0]} CSG operations, bins {csg.bins.shape}, "
+        f"built in {time.perf_counter() - t0:.1f} s"
+    )
+    raster = jax.jit(rasterize)
+    path = fly_path(steps, 4)
+    rows = []
+    detail = None
+    for n in sorted(set(sizes) | {detail_n}):
+        pipe = T.ClipBoxPipeline(csg, size=n, levels=levels)
+        t0 = time.perf_counter()
+        run_path(pipe, path)  # compiles every shape the timed run will use
+        warm_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        st, per_level, moves = run_path(pipe, path)
+        timed_s = time.perf_counter() - t0
+        sample_ms, mesh_ms = full_box_ms(pipe, st)
+        box_ms = sample_ms + mesh_ms
+        lvl_render, (total_render, total_polys) = render_times(st, path[-1], width, height, raster)
+        upd = [1e3 * dt / k for dt, k in moves]
+        reused = [s["reused"] for v in per_level.values() for s in v]
+        row = dict(
+            N=n,
+            update_avg_ms=float(np.mean(upd)) if upd else float("nan"),
+            full_box_ms=box_ms,
+            full_box_sampling_ms=sample_ms,
+            full_box_mesh_ms=mesh_ms,
+            render_ms=total_render,
+            polys_k=total_polys / 1e3,
+            memory_mb=memory_mb(st),
+            reused_avg=float(np.mean(reused)) if reused else float("nan"),
+            compile_s=max(warm_s - timed_s, 0.0),
+        )
+        rows.append(row)
+        print(
+            f"N={n}: update avg {row['update_avg_ms']:.0f} ms, full box {box_ms:.0f} ms, "
+            f"render {total_render:.0f} ms, {total_polys / 1e3:.0f} k polys, "
+            f"{row['memory_mb']:.0f} MB, reused {row['reused_avg']:.0%}, "
+            f"compile ~{row['compile_s']:.0f} s"
+        )
+        if n == detail_n:
+            key = jax.random.PRNGKey(1)
+            subdiv = {lvl: subdivision_ms(pipe, st, lvl, key) for lvl in range(min(2, levels))}
+            detail = dict(
+                N=n,
+                levels={
+                    lvl: {
+                        **{
+                            k: float(np.mean([s[k] for s in per_level.get(lvl, [])] or [0.0]))
+                            for k in STAGES
+                        },
+                        "updates": len(per_level.get(lvl, [])),
+                        "subdivision_ms": subdiv.get(lvl, (0.0, 0))[0],
+                        "subdivided_polys_k": subdiv.get(lvl, (0.0, 0))[1] / 1e3,
+                        "render_ms": lvl_render[lvl][0],
+                        "polys_k": lvl_render[lvl][1] / 1e3,
+                    }
+                    for lvl in range(levels)
+                },
+            )
+    lv = detail["levels"]
+    hdr = (
+        "| ClipBox "
+        + str(detail["N"])
+        + " | "
+        + " | ".join(f"CB-{lvl + 1}" for lvl in reversed(range(levels)))
+        + " |"
+    )
+    md = [
+        f"Machine: {machine()}",
+        "",
+        f"Fly path: {steps} steps of 4 voxels; "
+        f"{levels} levels; CSG with {csg.centers.shape[0]} operations.",
+        "",
+        hdr,
+        "|---" * (levels + 1) + "|",
+    ]
+    names = dict(
+        generation_ms="Procedural generation (ms)",
+        polygons_ms="Voxels to polygons (ms)",
+        smoothing_ms="Smoothing (ms)",
+        normals_ms="Surface normals (ms)",
+        welding_ms="Seam welding (ms)",
+        subdivision_ms="Subdivision + fractal details (ms)",
+        subdivided_polys_k="Polygons after subdivision (k)",
+        updates="Updates along the path",
+        render_ms="Render (ms)",
+        polys_k="Polygons (k)",
+    )
+    for key, label in names.items():
+        vals = [lv[lvl][key] for lvl in reversed(range(levels))]
+        md.append(f"| {label} | " + " | ".join(f"{v:.1f}" for v in vals) + " |")
+    md += [
+        "",
+        "| ClipBox resolution | " + " | ".join(str(r["N"]) for r in rows) + " |",
+        "|---" * (len(rows) + 1) + "|",
+    ]
+    for key, label in (
+        ("update_avg_ms", "CB update avg. (ms)"),
+        ("full_box_ms", "Full box rebuild (ms)"),
+        ("full_box_sampling_ms", "- of which sampling (ms)"),
+        ("full_box_mesh_ms", "- of which polygons, smoothing, normals (ms)"),
+        ("render_ms", f"Render total (ms, {width}x{height})"),
+        ("polys_k", "Polys total (k)"),
+        ("memory_mb", "Memory (MB)"),
+        ("reused_avg", "Reused voxels"),
+        ("compile_s", "Compile (s, apart)"),
+    ):
+        md.append(f"| {label} | " + " | ".join(f"{r[key]:.2f}" for r in rows) + " |")
+    text = "\n".join(md)
+    print(text)
+    if args.out:
+        write_table(
+            args.out,
+            "Clip-Box performance (Table 3.1)",
+            text,
+            dict(machine=machine(), detail=detail, sizes=rows),
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

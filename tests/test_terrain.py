@@ -1,0 +1,650 @@
+"""Tests for jaxgfx.terrain (thesis chapter 3): terrain functions, Clip-Boxes, meshes, seams."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import threading
+import time
+from collections import Counter
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxgfx import terrain as T
+
+DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "terrain")
+N = 16
+ROUND = 3  # welded positions are compared after rounding to 1e-3 voxel units
+
+sample_jit = jax.jit(T.sample_terrain, static_argnames=("shape",))
+# One pipeline's jitted steps serve every test, so each step compiles once.
+PIPE = T.ClipBoxPipeline(
+    T.SawTerrain(modulus=40, threshold=20), size=N, levels=3, max_quads=6000, smoothing=3
+)
+clipbox_jit = PIPE.sample_fn
+shift_jit = PIPE.shift_fn
+
+
+def mesh_jit(box, max_quads=6000, seam=True):
+    return PIPE.extract_fn(box, max_quads=max_quads, seam=seam)
+
+
+def smooth_jit(box):
+    return PIPE.normals_fn(PIPE.smooth_fn(mesh_jit(box), iterations=3))
+
+
+weld_jit = PIPE.weld_fn
+vis_jit = jax.jit(T.visible_faces)
+
+
+def grid_points(origin, shape, step=1):
+    idx = [np.arange(n, dtype=np.int64) * step for n in shape]
+    g = np.stack(np.meshgrid(*idx, indexing="ij"), -1) + np.asarray(origin, np.int64)
+    return g
+
+
+def sample_np(fn_np, origin, shape, step=1):
+    g = grid_points(origin, shape, step)
+    return fn_np(g[..., 0], g[..., 1], g[..., 2])
+
+
+def sample(t, origin, shape, level=0):
+    return np.asarray(sample_jit(t, jnp.asarray(origin, jnp.int32), level=level, shape=shape))
+
+
+# ---------------------------------------------------------------- Eq. 3.2, exact integers
+
+ORIGINS = [
+    (0, 0, 0),
+    (-517, 33, -2001),
+    (1_000_000_000, -7, 999_999_000),
+    (2**31 - 40, -(2**31), 5),
+]
+
+
+@pytest.mark.parametrize("origin", ORIGINS)
+def test_xor_saw_sin_match_numpy(origin):
+    shape = (20, 12, 16)
+    xor_np = lambda x, y, z: np.mod(x ^ y ^ z, 1000) < 357  # noqa: E731
+    saw_np = lambda x, y, z: np.mod(x + y + z, 1000) < 500  # noqa: E731
+    sin_np = lambda x, y, z: np.sin(x) + np.sin(y) + np.sin(z) < 2  # noqa: E731
+    np.testing.assert_array_equal(
+        sample(T.XorTerrain(), origin, shape), sample_np(xor_np, origin, shape)
+    )
+    np.testing.assert_array_equal(
+        sample(T.SawTerrain(), origin, shape), sample_np(saw_np, origin, shape)
+    )
+    np.testing.assert_array_equal(
+        sample(T.SinTerrain(), origin, shape), sample_np(sin_np, origin, shape)
+    )
+    # A narrower modulus/threshold exercises many more sign changes.
+    saw7 = T.SawTerrain(modulus=7, threshold=3)
+    np.testing.assert_array_equal(
+        sample(saw7, origin, shape),
+        sample_np(lambda x, y, z: np.mod(x + y + z, 7) < 3, origin, shape),
+    )
+
+
+def test_int_sin_accuracy_everywhere():
+    x = np.concatenate(
+        [np.arange(-3000, 3000), np.random.default_rng(0).integers(-(2**31), 2**31 - 1, 20000)]
+    ).astype(np.int64)
+    got = np.asarray(jax.jit(T.int_sin)(jnp.asarray(x, jnp.int32)))
+    np.testing.assert_allclose(got, np.sin(x.astype(np.float64)), atol=1e-6, rtol=0)
+
+
+# ---------------------------------------------------------------- CSG with bins
+
+
+def csg_reference(csg: T.CSGTerrain, pts: np.ndarray) -> np.ndarray:
+    """Sequential Boolean operations, O(points x primitives), no bins."""
+    c = np.asarray(csg.centers, np.int64)
+    e = np.asarray(csg.extents, np.int64)
+    k = np.asarray(csg.kinds)
+    u = np.asarray(csg.union)
+    per, half = csg.period, csg.period // 2
+    out = pts[..., 1] < csg.ground
+    for i in range(c.shape[0]):
+        dx = np.mod(pts[..., 0] - c[i, 0] + half, per) - half
+        dz = np.mod(pts[..., 2] - c[i, 2] + half, per) - half
+        dy = pts[..., 1] - c[i, 1]
+        if k[i] == T.PRIMITIVE_SPHERE:
+            inside = dx**2 + dy**2 + dz**2 <= e[i, 0] ** 2
+        elif k[i] == T.PRIMITIVE_BOX:
+            inside = (np.abs(dx) <= e[i, 0]) & (np.abs(dy) <= e[i, 1]) & (np.abs(dz) <= e[i, 2])
+        else:
+            inside = (dx**2 + dz**2 <= e[i, 0] ** 2) & (np.abs(dy) <= e[i, 1])
+        out = np.where(inside, u[i], out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_csg():
+    return T.random_csg_terrain(
+        key=jax.random.PRNGKey(3),
+        count=120,
+        period=64,
+        y_range=(-24, 24),
+        radius=(2, 7),
+        bin_size=8,
+    )
+
+
+@pytest.mark.parametrize("origin", [(-40, -30, -40), (1_000_000_000, -20, -1_000_000_000)])
+def test_csg_matches_bruteforce(small_csg, origin):
+    shape = (72, 52, 20)  # crosses the tiling period and the y range of the bins
+    got = sample(small_csg, origin, shape)
+    want = csg_reference(small_csg, grid_points(origin, shape))
+    np.testing.assert_array_equal(got, want)
+    assert 0 < got.mean() < 1
+    # Binning: a point tests at most K primitives, far fewer than all of them.
+    assert small_csg.bins.shape[1] < small_csg.centers.shape[0] // 4
+
+
+def test_csg_same_key_same_terrain(small_csg):
+    again = T.random_csg_terrain(
+        key=jax.random.PRNGKey(3),
+        count=120,
+        period=64,
+        y_range=(-24, 24),
+        radius=(2, 7),
+        bin_size=8,
+    )
+    other = T.random_csg_terrain(
+        key=jax.random.PRNGKey(4),
+        count=120,
+        period=64,
+        y_range=(-24, 24),
+        radius=(2, 7),
+        bin_size=8,
+    )
+    for a, b in zip(jax.tree_util.tree_leaves(small_csg), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(a, b)
+    s = sample(small_csg, (0, -8, 0), (32, 16, 32))
+    assert np.array_equal(s, sample(again, (0, -8, 0), (32, 16, 32)))
+    assert not np.array_equal(s, sample(other, (0, -8, 0), (32, 16, 32)))
+
+
+def test_csg_bad_input():
+    with pytest.raises(ValueError, match="period"):
+        T.csg_terrain(
+            [[0, 0, 0]], [[2, 2, 2]], [0], [True], period=60, y_range=(-8, 8), bin_size=16
+        )
+    with pytest.raises(ValueError, match="y_range"):
+        T.csg_terrain(
+            [[0, 0, 0]], [[9, 9, 9]], [0], [True], period=64, y_range=(-8, 8), bin_size=16
+        )
+    with pytest.raises(ValueError, match="radius"):
+        T.random_csg_terrain(key=jax.random.PRNGKey(0), radius=(5, 2))
+
+
+# ---------------------------------------------------------------- height maps, volumes, combinators
+
+
+def test_heightmap_terrain_matches_numpy():
+    h = np.array([[0.0, 1.0, 2.5], [4.0, 0.5, 3.0]])
+    t = T.heightmap_terrain(h, vertical_scale=2.0, cell=2, base=-3)
+    hv = np.round((h - h.min()) * 2.0) - 3
+    origin, shape = (-9, -6, -7), (14, 12, 10)
+    g = grid_points(origin, shape)
+    want = g[..., 1] < hv[np.mod(g[..., 2] // 2, 2), np.mod(g[..., 0] // 2, 3)]
+    np.testing.assert_array_equal(sample(t, origin, shape), want)
+
+
+@pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
+def test_real_heightmaps_load():
+    dem = T.load_heightmap(os.path.join(DATA, "SainteHelens.dem"))
+    assert dem.ndim == 2 and min(dem.shape) > 100
+    assert abs(dem.min() - 682) < 1 and abs(dem.max() - 2543) < 1  # header min/max
+    img = T.load_heightmap(os.path.join(DATA, "gcanyon_elev_crop.bw.png"))
+    assert img.shape == (1200, 1200)
+    t = T.heightmap_terrain(dem, vertical_scale=1 / 30.0)
+    assert sample(t, (0, 0, 0), (8, 70, 8)).any()
+
+
+def test_heightmap_bad_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="heightmap path"):
+        T.load_heightmap(tmp_path / "missing.png")
+    bad = tmp_path / "not_an_image.png"
+    bad.write_text("hello")
+    with pytest.raises(ValueError, match="heightmap"):
+        T.load_heightmap(bad)
+    dem = tmp_path / "broken.dem"
+    dem.write_bytes(b"x" * 1100)
+    with pytest.raises(ValueError, match="DEM"):
+        T.load_heightmap(dem)
+
+
+def test_volume_terrain_placed_and_tiled():
+    vol = np.random.default_rng(1).random((5, 4, 3)) < 0.5
+    off = (3, -2, 7)
+    origin, shape = (-6, -4, -5), (20, 9, 21)
+    g = grid_points(origin, shape) - np.asarray(off)
+    placed = T.volume_terrain(vol, offset=off)
+    inside = np.all((g >= 0) & (g < vol.shape), axis=-1)
+    gc = np.clip(g, 0, np.asarray(vol.shape) - 1)
+    want = inside & vol[gc[..., 0], gc[..., 1], gc[..., 2]]
+    np.testing.assert_array_equal(sample(placed, origin, shape), want)
+    tiled = T.volume_terrain(vol, offset=off, period=(7, 4))
+    q = g.copy()
+    q[..., 0] = np.mod(q[..., 0], 7)
+    q[..., 2] = np.mod(q[..., 2], 4)
+    inside = np.all((q >= 0) & (q < vol.shape), axis=-1)
+    qc = np.clip(q, 0, np.asarray(vol.shape) - 1)
+    want = inside & vol[qc[..., 0], qc[..., 1], qc[..., 2]]
+    np.testing.assert_array_equal(sample(tiled, origin, shape), want)
+
+
+def test_combinators():
+    a, b = T.SawTerrain(modulus=9, threshold=4), T.XorTerrain(modulus=5, threshold=2)
+    origin, shape = (-5, 2, 11), (9, 8, 7)
+    sa, sb = sample(a, origin, shape), sample(b, origin, shape)
+    np.testing.assert_array_equal(sample(T.Union(a, b), origin, shape), sa | sb)
+    np.testing.assert_array_equal(sample(T.Intersection(a, b), origin, shape), sa & sb)
+    np.testing.assert_array_equal(sample(T.Difference(a, b), origin, shape), sa & ~sb)
+    f = T.as_terrain(lambda p: p[1] < 4)
+    np.testing.assert_array_equal(sample(f, origin, shape), grid_points(origin, shape)[..., 1] < 4)
+
+
+def test_terrain_function_wrong_output():
+    with pytest.raises(TypeError, match="terrain must map"):
+        T.check_terrain(lambda p: p[1].astype(jnp.float32))
+    with pytest.raises(TypeError, match="terrain must map"):
+        T.check_terrain(lambda p: p[:2] < 0)
+    with pytest.raises(TypeError, match="terrain"):
+        T.check_terrain(42)
+    with pytest.raises(TypeError, match="terrain"):
+        T.ClipBoxPipeline(lambda p: jnp.zeros((2,), bool), size=16, levels=1)
+
+
+# ---------------------------------------------------------------- Clip-Box sampling and shifting
+
+
+def test_sample_clipbox_levels_and_vmap():
+    t = T.SawTerrain(modulus=13, threshold=6)
+    for lvl in (0, 2):
+        o = T.clipbox_origin(np.array([7, -3, 100]), lvl, N)
+        assert np.all(o % (2 << lvl) == 0)
+        box = clipbox_jit(t, jnp.asarray(o, jnp.int32), lvl, size=N)
+        want = sample_np(lambda x, y, z: np.mod(x + y + z, 13) < 6, o, (N,) * 3, 1 << lvl)
+        np.testing.assert_array_equal(np.asarray(box.voxels), want)
+    origins = jnp.asarray([[0, 0, 0], [64, -32, 8]], jnp.int32)
+    batched = jax.vmap(lambda o: T.sample_terrain(t, o, level=1, shape=(4, 4, 4)))(origins)
+    for i in range(2):
+        np.testing.assert_array_equal(batched[i], sample(t, origins[i], (4, 4, 4), level=1))
+
+
+@pytest.mark.parametrize("delta", [(2, 0, 0), (-4, 2, 0), (6, -2, 4), (0, 0, -2)])
+def test_shift_equals_resample_and_reuses(delta):
+    t = T.XorTerrain(modulus=37, threshold=15)
+    lvl = 1
+    o = jnp.asarray(T.clipbox_origin(np.array([5, 9, -11]), lvl, N), jnp.int32)
+    box = clipbox_jit(t, o, lvl, size=N)
+    new = o + jnp.asarray(delta, jnp.int32) * (1 << lvl)
+    d_vox = np.asarray(delta)
+    moved = shift_jit(t, box, new, slabs=T.slab_thickness(d_vox))
+    full = clipbox_jit(t, new, lvl, size=N)
+    np.testing.assert_array_equal(moved.voxels, full.voxels)
+    frac = T.reused_fraction(o, new, lvl, N)
+    assert frac == pytest.approx(np.prod((N - np.abs(d_vox)) / N))
+    if np.abs(d_vox).max() <= 2:
+        assert frac >= 0.8  # thesis 3.4.6: about 80 % reused for small steps
+
+
+def test_reuse_at_n128_for_a_few_voxels():
+    # Host-side arithmetic only: a step of (3, 1, 2) voxels at N = 128 reuses >= 80 %.
+    assert T.reused_fraction((0, 0, 0), (6, 2, 4), 1, 128) >= 0.95
+
+
+def test_bad_sizes_and_levels():
+    for bad in (15, 12, 4, 0):
+        with pytest.raises(ValueError, match="size"):
+            T.clipbox_origin((0, 0, 0), 0, bad)
+    with pytest.raises(TypeError, match="size"):
+        T.ClipBoxPipeline(T.XorTerrain(), size=16.0, levels=2)
+    with pytest.raises(ValueError, match="levels"):
+        T.ClipBoxPipeline(T.XorTerrain(), size=16, levels=0)
+    with pytest.raises(ValueError, match="levels"):
+        T.nested_origins((0, 0, 0), levels=0, size=16)
+    with pytest.raises(ValueError, match="viewer"):
+        T.clipbox_origin((0.5, 0, 0), 0, 16)
+    with pytest.raises(ValueError, match="level"):
+        T.clipbox_origin((0, 0, 0), -1, 16)
+
+
+def test_pattern_filter_matches_numpy():
+    v = np.random.default_rng(5).random((6, 5, 7)) < 0.4
+    got = np.asarray(jax.jit(T.pattern_filter)(jnp.asarray(v)))
+    want = v.copy()
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        it = np.ndindex(*[s - 1 if ax in (a, b) else s for ax, s in enumerate(v.shape)])
+        for idx in it:
+            cells = []
+            for da, db in ((0, 0), (1, 0), (0, 1), (1, 1)):
+                j = list(idx)
+                j[a] += da
+                j[b] += db
+                cells.append(tuple(j))
+            val = [v[c] for c in cells]
+            if (val[0] and val[3] and not val[1] and not val[2]) or (
+                val[1] and val[2] and not val[0] and not val[3]
+            ):
+                for c in cells:
+                    want[c] = True
+    np.testing.assert_array_equal(got, want)
+
+
+# ---------------------------------------------------------------- voxels -> polygons
+
+
+def edge_counts(mesh, mask, directed=False):
+    f = np.asarray(mesh.faces)[np.asarray(mask)]
+    p = np.round(
+        np.asarray(mesh.vertices, np.float64) + np.asarray(getattr(mesh, "origin", 0)), ROUND
+    )
+    out = Counter()
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        for x, y in zip(map(tuple, p[f[:, a]]), map(tuple, p[f[:, b]])):
+            out[(x, y) if directed else tuple(sorted((x, y)))] += 1
+    return out
+
+
+def test_mesh_of_enclosed_blob_is_closed_and_oriented():
+    # A solid blob that does not touch the box: the mesh must be closed, consistently
+    # oriented, and enclose exactly the solid voxels (divergence theorem).
+    rng = np.random.default_rng(2)
+    vox = np.zeros((N, N, N), bool)
+    vox[3:13, 4:12, 2:14] = rng.random((10, 8, 12)) < 0.7
+    box = T.ClipBox(jnp.asarray([8, -16, 4], jnp.int32), jnp.asarray(vox), jnp.asarray(1), N)
+    m = mesh_jit(box)  # the blob stays clear of the seam ring
+    assert not bool(m.overflow)
+    pairs = sum(int(np.sum(np.diff(vox.astype(np.int8), axis=d) != 0)) for d in range(3))
+    assert int(m.num_quads) == pairs
+    valid = np.asarray(m.face_valid)
+    assert valid.sum() == 2 * pairs
+    und = edge_counts(m, valid)
+    assert all(c % 2 == 0 for c in und.values())
+    dirs = edge_counts(m, valid, directed=True)
+    assert all(dirs[(a, b)] == dirs[(b, a)] for a, b in dirs)
+    f = np.asarray(m.faces)[valid]
+    p = np.asarray(m.vertices, np.float64)
+    vol = np.sum(np.einsum("ij,ij->i", p[f[:, 0]], np.cross(p[f[:, 1]], p[f[:, 2]]))) / 6.0
+    assert vol == pytest.approx(vox.sum() * 2.0**3)
+    # vertices are shared lattice corners: no duplicates among used vertices
+    used = np.asarray(m.vertices)[: int(m.num_vertices)]
+    assert len({tuple(r) for r in used}) == used.shape[0]
+
+
+def test_mesh_overflow_is_reported_not_hidden():
+    vox = np.indices((N, N, N)).sum(0) % 2 == 0  # checkerboard: every face is a quad
+    box = T.ClipBox(jnp.zeros(3, jnp.int32), jnp.asarray(vox), jnp.asarray(0), N)
+    m = mesh_jit(box, max_quads=1000)
+    occ = np.asarray(T._seam_occupancy(jnp.asarray(vox)))
+    pairs = sum(int(np.sum(np.diff(occ.astype(np.int8), axis=d) != 0)) for d in range(3))
+    assert bool(m.overflow) and int(m.num_quads) == pairs > 1000
+
+
+TERRAINS = {
+    "saw": T.SawTerrain(modulus=40, threshold=20),
+    "xor": T.XorTerrain(modulus=64, threshold=23),
+    "sin": T.SinTerrain(),
+    "csg": T.random_csg_terrain(
+        key=jax.random.PRNGKey(0),
+        count=300,
+        period=256,
+        y_range=(-32, 32),
+        radius=(2, 8),
+        bin_size=16,
+    ),
+    "heightmap": T.heightmap_terrain(np.random.default_rng(0).random((9, 7)) * 12, cell=3, base=-6),
+}
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+@pytest.mark.parametrize("name", sorted(TERRAINS))
+def test_zero_cracks_between_two_levels(name, smooth):
+    t = TERRAINS[name]
+    build = smooth_jit if smooth else mesh_jit
+    for viewer in ([5, 3, 7], [-37, 1, 1_000_000_100]):
+        o0 = T.clipbox_origin(np.array(viewer), 0, N)
+        o1 = T.clipbox_origin(np.array(viewer), 1, N)
+        b0 = clipbox_jit(t, jnp.asarray(o0, jnp.int32), 0, size=N)
+        b1 = clipbox_jit(t, jnp.asarray(o1, jnp.int32), 1, size=N)
+        inner, outer = build(b0), build(b1)
+        assert not bool(inner.overflow) and not bool(outer.overflow)
+        inner = weld_jit(inner, outer)
+        e_in = edge_counts(inner, inner.face_valid)
+        e_out = edge_counts(outer, vis_jit(outer, jnp.asarray(o0, jnp.int32), N))
+        inner_open = [k for k, c in e_in.items() if c % 2]
+        # every boundary edge of the inner mesh is an edge of the visible outer mesh
+        assert all(e_out.get(k, 0) % 2 == 1 for k in inner_open)
+        # and the union is closed except on the outer box's own boundary
+        lat = np.asarray(outer.lattice)[: int(outer.num_vertices)]
+        pos = np.round(np.asarray(outer.vertices, np.float64) + np.asarray(outer.origin), ROUND)
+        rim = np.any((lat == 0) | (lat == N), axis=-1)
+        rim_keys = {tuple(q) for q in pos[: lat.shape[0]][rim]}
+        for k, c in (e_in + e_out).items():
+            if c % 2:
+                assert k[0] in rim_keys and k[1] in rim_keys, (name, k)
+        if name in ("saw", "csg", "heightmap"):
+            assert len(inner_open) > 0  # the surface does cross the seam
+
+
+def test_visible_faces_excludes_inner_region():
+    t = TERRAINS["saw"]
+    o1 = T.clipbox_origin(np.array([0, 0, 0]), 1, N)
+    o0 = T.clipbox_origin(np.array([0, 0, 0]), 0, N)
+    m = mesh_jit(clipbox_jit(t, jnp.asarray(o1, jnp.int32), 1, size=N))
+    vis = np.asarray(vis_jit(m, jnp.asarray(o0, jnp.int32), N))
+    c = np.asarray(m.face_center2) / 2.0 * 2 + np.asarray(o1)  # world centre of each face
+    inside = np.all((c > o0) & (c < o0 + N), axis=-1)
+    np.testing.assert_array_equal(vis, np.asarray(m.face_valid) & ~inside)
+    assert inside[np.asarray(m.face_valid)].any() and vis.any()
+
+
+def test_smoothing_and_normals():
+    flat = T.as_terrain(lambda p: p[1] < 6)  # even: the seam ring keeps it flat
+    box = clipbox_jit(flat, jnp.asarray([0, 0, 0], jnp.int32), 0, size=N)
+    m = smooth_jit(box)
+    used = int(m.num_vertices)
+    n = np.asarray(m.normals)[:used]
+    inner = np.all((np.asarray(m.lattice)[:used] > 2) & (np.asarray(m.lattice)[:used] < N - 2), -1)
+    np.testing.assert_allclose(n[inner], np.tile([0.0, 1.0, 0.0], (inner.sum(), 1)), atol=1e-6)
+    blob = TERRAINS["csg"]
+    m0 = mesh_jit(clipbox_jit(blob, jnp.asarray([0, -8, 0], jnp.int32), 0, size=N))
+    ms = PIPE.normals_fn(PIPE.smooth_fn(m0, iterations=3))
+    assert np.all(np.isfinite(np.asarray(ms.vertices)))
+    nn = np.linalg.norm(np.asarray(ms.normals)[: int(ms.num_vertices)], axis=-1)
+    np.testing.assert_allclose(nn, 1.0, atol=1e-5)
+
+    def rough(m):  # sum of squared lengths of the vertex-to-vertex links
+        nb = np.asarray(m.neighbors)
+        p = np.asarray(m.vertices)
+        i, k = np.nonzero(nb >= 0)
+        return float(np.sum((p[i] - p[nb[i, k]]) ** 2))
+
+    assert rough(ms) < rough(m0)
+
+    def loss(verts):
+        m = dataclasses.replace(m0, vertices=verts)
+        m = T.mesh_normals(T.smooth_mesh(m, iterations=2))
+        return jnp.sum(m.normals[:, 1] * jnp.linspace(0.0, 1.0, m.normals.shape[0]))
+
+    g = jax.grad(loss)(m0.vertices)
+    assert np.all(np.isfinite(np.asarray(g)))
+    check_grads(
+        lambda v: T.smooth_mesh(dataclasses.replace(m0, vertices=v), iterations=2).vertices,
+        (m0.vertices,),
+        order=1,
+        modes=("rev",),
+        atol=1e-2,
+        rtol=1e-2,
+    )
+
+
+# ---------------------------------------------------------------- nested boxes and the worker
+
+
+@pytest.fixture(scope="module")
+def pipeline():
+    return PIPE
+
+
+def test_nested_pipeline_moves_and_stays_exact(pipeline):
+    st = pipeline.init(np.array([0, 3, 0]))
+    assert st.levels == 3
+    path = [np.array([0, 3, 2 * i]) for i in range(1, 8)]
+    moved = Counter()
+    for v in path:
+        st, stats = pipeline.update(st, v)
+        for lvl, s in stats.items():
+            moved[lvl] += 1
+            assert 0.0 <= s["reused"] <= 1.0
+        origins = st.origins()
+        for lvl in range(2):
+            assert T._nested_ok(origins[lvl], origins[lvl + 1], lvl, N)
+    assert moved[0] > moved[1] >= moved[2]  # inner boxes follow the viewer more often
+    for lvl, b in enumerate(st.boxes):  # cached + differential == sampled from scratch
+        fresh = clipbox_jit(pipeline.terrain, b.origin, lvl, size=N)
+        np.testing.assert_array_equal(b.voxels, fresh.voxels)
+
+
+def test_worker_stress_never_torn(pipeline):
+    worker = T.GeometryWorker(pipeline, np.array([0, 3, 0]))
+    stop = threading.Event()
+
+    def mover():
+        z = 0
+        while not stop.is_set():
+            z += 3
+            worker.set_viewer(np.array([z % 97, 3, z]))
+            time.sleep(0.002)
+
+    worker.start()
+    th = threading.Thread(target=mover, daemon=True)
+    th.start()
+    frames, gens = 0, []
+    t_end = time.perf_counter() + 6.0
+    try:
+        while time.perf_counter() < t_end and worker.swaps < 25:
+            buf = worker.acquire()
+            s0 = buf["stamp"].copy()
+            assert s0[0] == s0[1]
+            sums = [float(np.sum(lv["vertices"], dtype=np.float64)) for lv in buf["levels"]]
+            time.sleep(0.003)  # "draw": the worker must not touch this buffer meanwhile
+            assert np.array_equal(buf["stamp"], s0)
+            for lv, s in zip(buf["levels"], sums):
+                assert lv["generation"] == s0[0]
+                assert s == lv["checksum"]
+                assert float(np.sum(lv["vertices"], dtype=np.float64)) == s
+            gens.append(int(s0[0]))
+            frames += 1
+    finally:
+        stop.set()
+        th.join()
+        worker.stop()
+    assert worker.swaps >= 5 and frames > worker.swaps
+    assert gens == sorted(gens)  # generations only move forward
+
+
+# ---------------------------------------------------------------- subdivision, CLI
+
+
+def blob_mesh():
+    rng = np.random.default_rng(2)
+    vox = np.zeros((N, N, N), bool)
+    vox[3:13, 4:12, 2:14] = rng.random((10, 8, 12)) < 0.7
+    box = T.ClipBox(jnp.asarray([8, -16, 4], jnp.int32), jnp.asarray(vox), jnp.asarray(1), N)
+    return PIPE.normals_fn(mesh_jit(box)), vox
+
+
+def test_subdivision_with_displacement_stays_closed():
+    m, vox = blob_mesh()
+    key = jax.random.PRNGKey(7)
+    sub = PIPE.subdivide_fn(m, key=key, amplitude=0.3)
+    flat = PIPE.subdivide_fn(m, key=key, amplitude=0.0)
+    valid = np.asarray(sub.face_valid)
+    assert valid.sum() == 4 * np.asarray(m.face_valid).sum()
+    for s in (sub, flat):
+        e = edge_counts(s, s.face_valid)
+        assert all(c % 2 == 0 for c in e.values())  # midpoints agree across each edge
+        assert np.all(np.isfinite(np.asarray(s.vertices)))
+    f = np.asarray(flat.faces)[valid]
+    p = np.asarray(flat.vertices, np.float64)
+    vol = np.sum(np.einsum("ij,ij->i", p[f[:, 0]], np.cross(p[f[:, 1]], p[f[:, 2]]))) / 6.0
+    assert vol == pytest.approx(vox.sum() * 8.0)
+    d = np.abs(np.asarray(sub.vertices) - np.asarray(flat.vertices)).max()
+    assert 0 < d <= 0.3 * 2 + 1e-5  # level 1: amplitude 0.3 voxels of size 2
+    again = PIPE.subdivide_fn(m, key=key, amplitude=0.3)
+    np.testing.assert_array_equal(sub.vertices, again.vertices)  # same key, same details
+
+
+def _cli_args(**kw):
+    import argparse
+
+    base = dict(
+        function="saw",
+        viewer=(0, 24, 0),
+        resolution=16,
+        levels=2,
+        out="x.png",
+        camera=(0.0, -15.0),
+        size=(32, 24),
+        fov=60.0,
+        mesh=None,
+        mesh_level=None,
+        smoothing=2,
+        seed=0,
+        vertical_scale=None,
+        cell=1,
+    )
+    base.update(kw)
+    return argparse.Namespace(**base)
+
+
+def test_cli_terrain_errors(tmp_path, capsys):
+    from jaxgfx._cli_terrain import cmd_terrain
+
+    assert cmd_terrain(_cli_args(function="nope", out=str(tmp_path / "a.png"))) == 2
+    assert "--function" in capsys.readouterr().err
+    missing = "heightmap:" + str(tmp_path / "missing.dem")
+    assert cmd_terrain(_cli_args(function=missing, out=str(tmp_path / "a.png"))) == 2
+    assert "heightmap path" in capsys.readouterr().err
+    assert cmd_terrain(_cli_args(resolution=15, out=str(tmp_path / "a.png"))) == 2
+    assert "size" in capsys.readouterr().err
+    assert cmd_terrain(_cli_args(levels=0, out=str(tmp_path / "a.png"))) == 2
+    assert "levels" in capsys.readouterr().err
+    assert not (tmp_path / "a.png").exists()
+
+
+def test_cli_terrain_renders_and_exports(tmp_path):
+    import imageio.v3 as iio
+    import trimesh
+
+    from jaxgfx._cli_terrain import cmd_terrain
+
+    out, mesh = tmp_path / "t.png", tmp_path / "t.ply"
+    assert cmd_terrain(_cli_args(out=str(out), mesh=str(mesh), viewer=(3, 30, -5))) == 0
+    img = iio.imread(out)
+    assert img.shape[:2] == (24, 32) and img.std() > 0
+    tm = trimesh.load(mesh, process=False)
+    assert len(tm.faces) > 0 and np.all(np.isfinite(tm.vertices))
+
+
+def test_subdivision_needs_a_key_and_views_draw_it(pipeline):
+    st = pipeline.init(np.array([0, 3, 0]))
+    with pytest.raises(ValueError, match="key"):
+        T.level_views(st, subdivide=1)
+    with pytest.raises(ValueError, match="key"):
+        T.ClipBoxPipeline(T.XorTerrain(), size=16, levels=2, subdivide=1)
+    plain = T.level_views(st)
+    sub = T.level_views(st, subdivide=1, key=jax.random.PRNGKey(0), subdivide_fn=PIPE.subdivide_fn)
+    assert sub[0]["visible"].sum() == 4 * plain[0]["visible"].sum()
+    for a, b in zip(plain[1:], sub[1:]):
+        np.testing.assert_array_equal(a["faces"], b["faces"])
+    v, n, f, lvl = T.level_arrays(sub, (0, 3, 0))
+    assert f.max() < v.shape[0] and np.all(np.isfinite(v))
