@@ -78,7 +78,7 @@ def _markdown_table(rows, headers) -> str:
 def cmd_demo(args) -> int:
     import jax
 
-    from jaxgfx.compose import depth_image
+    from jaxgfx.compose import Frame, depth_image
     from jaxgfx.io import atomic_write, save_json, save_png
     from jaxgfx.scene import build_demo
 
@@ -86,9 +86,11 @@ def cmd_demo(args) -> int:
     out = Path(args.out)
     demo = build_demo(w, h, key=jax.random.key(args.seed))
     rows, frames = [], []
-    for name, fn, fn_args in demo.passes:
-        c, t, frame = _time(fn, *fn_args)
-        frames.append(frame)
+    for name, fn, fn_args, first in demo.passes:
+        c, t, result = _time(fn, *fn_args)
+        c = c if first is None else first
+        if isinstance(result, Frame):  # other stages (terrain generation) feed a pass
+            frames.append(result)
         rows.append(dict(stage=name, compile_s=c, ms=t * 1e3))
     c, t, frame = _time(demo.composite, frames)
     rows.append(dict(stage="depth composite + fog", compile_s=c, ms=t * 1e3))

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx import skin
+from jaxgfx import skin, terrain
 from jaxgfx.camera import Camera
 from jaxgfx.compose import Frame, background, composite, fog, lambert
 from jaxgfx.raster import rasterize, validate_mesh, vertex_normals
@@ -35,6 +35,8 @@ __all__ = [
     "render_character",
     "Demo",
     "build_demo",
+    "demo_terrain",
+    "terrain_mesh_pass",
 ]
 
 
@@ -242,35 +244,104 @@ class Demo(NamedTuple):
     """The demo frame as timed passes sharing one camera (thesis 2.3, Fig. 2.2)."""
 
     camera: Camera
-    passes: list  # [(name, jitted fn, args)] each returning a Frame
+    passes: list  # [(name, fn, args, first-call seconds or None)]; Frames are composited
     composite: Callable  # jitted: list of Frames -> Frame
     description: str
+
+
+def demo_terrain(*, key: jax.Array, size: int = 32, levels: int = 3):
+    """Volumetric demo terrain: rolling hills (a heightmap) united with CSG rocks and arches.
+
+    Returns:
+        A :class:`jaxgfx.terrain.ClipBoxPipeline` of ``levels`` nested Clip-Boxes of
+        ``size``^3 voxels (thesis ch. 3); the hills are flat around the origin.
+    """
+    k_hills, k_rocks = jax.random.split(key)
+    n = 256
+    xs = np.arange(n) - n / 2
+    gx, gz = np.meshgrid(xs, xs)
+    p = np.asarray(jax.random.uniform(k_hills, (40, 4)))
+    h = np.zeros_like(gx)
+    for cx, cz, a, w in p:
+        cx, cz, a, w = (cx - 0.5) * n, (cz - 0.5) * n, -6 + 20 * a, 8 + 16 * w
+        h += a * np.exp(-((gx - cx) ** 2 + (gz - cz) ** 2) / (2 * w * w))
+    h *= np.clip((np.hypot(gx, gz) - 20) / 16, 0, 1)
+    # The heightmap tiles with period n; centre the flat part on the origin.
+    hills = terrain.heightmap_terrain(np.fft.ifftshift(h), base=int(np.floor(h.min())))
+    rocks = terrain.random_csg_terrain(
+        key=k_rocks,
+        count=160,
+        period=256,
+        y_range=(-10, 36),
+        radius=(3, 9),
+        union_fraction=0.6,
+        ground=-(10**6),
+    )
+    return terrain.ClipBoxPipeline(
+        terrain.Union(hills, rocks), size=size, levels=levels, smoothing=4
+    )
+
+
+def terrain_mesh_pass(levels, voxel_size: float, color=(0.62, 0.56, 0.46)) -> MeshPass:
+    """All Clip-Box levels (viewer-relative, anchored at the origin) as one :class:`MeshPass`."""
+    v, n, f, _ = terrain.level_arrays(levels, (0, 0, 0))
+    if f.shape[0] == 0:
+        f = np.zeros((1, 3), np.int32)  # one degenerate triangle draws nothing
+    v = jnp.asarray(v, jnp.float32) * voxel_size
+    return MeshPass(
+        v,
+        jnp.asarray(f, jnp.int32),
+        jnp.broadcast_to(jnp.asarray(color, jnp.float32), v.shape),
+        jnp.asarray(n, jnp.float32),
+    )
 
 
 def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
     """Builds the default scene (no data files needed) and its jitted passes.
 
-    Background sky, a polygon pass (rolling ground and primitives), and a
-    character pass (spline skinning with a muscle style); every pass uses the
-    same camera and the frames are merged by depth.
+    Background sky; the terrain pass (3 nested Clip-Boxes of volumetric terrain,
+    ch. 3); a polygon pass with primitives; a character pass (spline skinning
+    with a muscle style, ch. 5).  Every pass uses the same camera and the
+    frames are merged by depth.  Terrain generation is timed as a pass of its own.
     """
+    import time
+
     from jaxgfx.camera import look_at
 
+    k_terrain, k_objects = jax.random.split(key)
     cam = look_at([0.0, 6.0, -14.0], [1.0, 1.5, 6.0], 55.0, width, height, 0.1, 500.0)
-    meshes = merge_mesh_passes(demo_meshes(key=key))
+    meshes = merge_mesh_passes(demo_meshes(key=k_objects)[1:])  # primitives, no ground
     ch = demo_character_pass(offset=(3.2, 0.0, -1.5), scale=1.6)
+    pipe = demo_terrain(key=k_terrain)
+    voxel = 0.5  # world units per level-0 voxel
+
+    def generate_terrain(viewer):
+        # Host-driven Clip-Box build (sampling, faces, smoothing, normals, welding).
+        t0 = time.perf_counter()
+        state = pipe.init(viewer)
+        jax.block_until_ready(state)
+        generate_terrain.seconds = time.perf_counter() - t0
+        return terrain_mesh_pass(pipe.views(state), voxel)
+
+    viewer = tuple(int(round(c / voxel)) for c in np.asarray(cam.position))
+    terrain_pass = generate_terrain(viewer)
+    first_build = generate_terrain.seconds  # includes tracing and compiling every step
+    render = jax.jit(render_mesh_pass)
     passes = [
-        ("background pass", jax.jit(background), (cam,)),
-        ("polygon pass (rasterizer)", jax.jit(render_mesh_pass), (cam, meshes)),
+        ("background pass", jax.jit(background), (cam,), None),
+        ("terrain generation (3 Clip-Boxes of 32^3)", generate_terrain, (viewer,), first_build),
+        ("terrain pass (rasterizer)", render, (cam, terrain_pass), None),
+        ("polygon pass (rasterizer)", render, (cam, meshes), None),
         (
             "character pass (spline skinning + style + rasterizer)",
             jax.jit(lambda c, ch, ph: render_character(c, ch, character_pose(ch, ph))),
             (cam, ch, jnp.float32(0.3)),
+            None,
         ),
     ]
-    n_tri = int(meshes.faces.shape[0]) + int(ch.faces.shape[0])
     desc = (
-        f"{n_tri} triangles in the polygon passes; character: "
+        f"terrain: {int(terrain_pass.faces.shape[0])} triangles; primitives: "
+        f"{int(meshes.faces.shape[0])} triangles; character: "
         f"{int(ch.binding.rest.shape[0])} vertices on a spline rig with the muscle style"
     )
     comp = jax.jit(lambda fs: fog(composite(fs), density=0.012))
