@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import json
-import os
-import platform
-
 import jax
 import numpy as np
+from common import machine, markdown_table, write_table  # noqa: F401  (re-exported)
 
 from jaxgfx import skin
 
@@ -20,38 +17,6 @@ __all__ = [
     "limb_binding",
     "random_poses",
 ]
-
-
-def machine() -> str:
-    """One line naming the CPU, core count, load and JAX devices."""
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    devs = ", ".join(sorted({d.device_kind for d in jax.devices()}))
-    return (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores "
-        f"(load {load:.1f}); jax {jax.__version__} on {devs}"
-    )
-
-
-def markdown_table(rows: list[dict], columns: list[str]) -> str:
-    """Rows of dicts as a Markdown table (floats with 4 significant digits)."""
-
-    def fmt(v):
-        return f"{v:.4g}" if isinstance(v, float) else str(v)
-
-    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-def write_table(out_dir, name: str, markdown: str, data: dict) -> None:
-    """Writes ``table.md`` and ``table.json`` atomically under ``out_dir``."""
-    from jaxgfx.io import atomic_write
-
-    os.makedirs(out_dir, exist_ok=True)
-    with atomic_write(os.path.join(out_dir, "table.md")) as tmp:
-        tmp.write_text(f"# {name}\n\n{markdown}\n")
-    with atomic_write(os.path.join(out_dir, "table.json")) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")
 
 
 def cylinder(n_around: int, n_along: int, radius: float, length: float, *, caps: bool = True):

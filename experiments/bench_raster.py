@@ -23,7 +23,7 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, time_jitted, write_table  # noqa: E402
+from common import machine, markdown_table, time_jitted, write_table  # noqa: E402
 
 from jaxgfx.camera import camera_basis, look_at, pixel_rays  # noqa: E402
 from jaxgfx.compose import depth_image  # noqa: E402
@@ -155,7 +155,10 @@ def main(argv=None) -> int:
         "mesh", "triangles", "size", "compile_s", "ms_per_frame", "Mtri_per_s",
         "trimesh_ms_per_frame", "speedup_vs_trimesh", "peer_rays", "depth_agree", "coverage",
     ]  # fmt: skip
-    write_table(args.out, "bench_raster", "Rasterizer vs trimesh ray casting", rows, cols, meta)
+    md = markdown_table(rows, cols) + f"\n\nmachine: {meta['machine']}\n\n{meta['note']}\n"
+    print(md)
+    if args.out:
+        write_table(args.out, "Rasterizer vs trimesh ray casting", md, dict(meta, rows=rows))
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Helpers shared by the experiments: timing, machine description, table output."""
+"""Helpers shared by every experiment: machine line, timing, atomic Markdown/JSON tables."""
 
 from __future__ import annotations
 
@@ -6,15 +6,16 @@ import json
 import os
 import platform
 import time
-from pathlib import Path
 
 import jax
 
 from jaxgfx.io import atomic_write
 
+__all__ = ["machine", "time_jitted", "markdown_table", "write_table"]
+
 
 def machine() -> str:
-    """One line naming the processor, core count, JAX version and devices."""
+    """One line naming the CPU model, core count, current load, JAX version and devices."""
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as fh:
@@ -24,12 +25,13 @@ def machine() -> str:
                     break
     except OSError:
         pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     devs = ", ".join(sorted({d.device_kind for d in jax.devices()}))
-    return f"{cpu}, {os.cpu_count()} cores; jax {jax.__version__}; devices: {devs}"
+    return f"{cpu}, {os.cpu_count()} cores (load {load:.1f}); jax {jax.__version__} on {devs}"
 
 
 def time_jitted(fn, *args, repeats: int = 3):
-    """(first call incl. compile, median steady seconds, output)."""
+    """(first call incl. trace + compile, median steady seconds, output), all blocked."""
     t0 = time.perf_counter()
     out = jax.block_until_ready(fn(*args))
     first = time.perf_counter() - t0
@@ -43,23 +45,20 @@ def time_jitted(fn, *args, repeats: int = 3):
 
 
 def markdown_table(rows: list[dict], columns: list[str]) -> str:
-    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
-    return head + "".join(
-        "| " + " | ".join(str(r.get(c, "")) for c in columns) + " |\n" for r in rows
-    )
+    """Rows of dicts as a Markdown table (floats with 4 significant digits)."""
+
+    def fmt(v):
+        return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)
 
 
-def write_table(out_dir, name: str, title: str, rows: list[dict], columns: list[str], meta: dict):
-    """Prints the table and writes ``name.md`` and ``name.json`` atomically into ``out_dir``."""
-    mach = meta.get("machine", machine())
-    md = f"## {title}\n\n{markdown_table(rows, columns)}\nmachine: {mach}\n"
-    print(md)
-    if out_dir is None:
-        return md
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / f"{name}.md") as tmp:
-        tmp.write_text(md)
-    with atomic_write(out / f"{name}.json") as tmp:
-        tmp.write_text(json.dumps(dict(meta, rows=rows), indent=2, default=str) + "\n")
-    return md
+def write_table(out_dir, name: str, markdown: str, data: dict) -> None:
+    """Writes ``table.md`` and ``table.json`` atomically under ``out_dir``."""
+    os.makedirs(out_dir, exist_ok=True)
+    with atomic_write(os.path.join(out_dir, "table.md")) as tmp:
+        tmp.write_text(f"# {name}\n\n{markdown}\n")
+    with atomic_write(os.path.join(out_dir, "table.json")) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")

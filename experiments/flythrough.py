@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _terrain_common import machine, write_table  # noqa: E402
+from common import machine, write_table  # noqa: E402
 
 from jaxgfx import terrain as T  # noqa: E402
 from jaxgfx.camera import camera_from_degrees  # noqa: E402
