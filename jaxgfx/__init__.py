@@ -10,7 +10,20 @@ Every public name is re-exported here; the modules stay importable as ``jaxgfx.<
 
 __version__ = "0.1.0"
 
-from jaxgfx import camera, compose, fit, gltf, io, raster, scene, skin, terrain  # noqa: E402
+from jaxgfx import (  # noqa: E402
+    camera,
+    compose,
+    fit,
+    gltf,
+    io,
+    post,
+    raster,
+    raycast,
+    scene,
+    skin,
+    terrain,
+    voxels,
+)
 from jaxgfx.camera import Camera as Camera
 from jaxgfx.camera import camera_basis as camera_basis
 from jaxgfx.camera import camera_from_degrees as camera_from_degrees
@@ -53,6 +66,11 @@ from jaxgfx.io import save_json as save_json
 from jaxgfx.io import save_mesh as save_mesh
 from jaxgfx.io import save_npy as save_npy
 from jaxgfx.io import save_png as save_png
+from jaxgfx.post import ambient_occlusion as ambient_occlusion
+from jaxgfx.post import antialias as antialias
+from jaxgfx.post import screen_space_normals as screen_space_normals
+from jaxgfx.post import shade as shade
+from jaxgfx.post import smooth as smooth
 from jaxgfx.raster import ClippedTriangles as ClippedTriangles
 from jaxgfx.raster import RasterOutput as RasterOutput
 from jaxgfx.raster import TriangleSetup as TriangleSetup
@@ -67,6 +85,23 @@ from jaxgfx.raster import triangle_setup as triangle_setup
 from jaxgfx.raster import validate_mesh as validate_mesh
 from jaxgfx.raster import vertex_normals as vertex_normals
 from jaxgfx.raster import visibility as visibility
+from jaxgfx.raycast import PlaneParams as PlaneParams
+from jaxgfx.raycast import RenderOutput as RenderOutput
+from jaxgfx.raycast import Segments as Segments
+from jaxgfx.raycast import check_camera_outside as check_camera_outside
+from jaxgfx.raycast import dda_ray_3d as dda_ray_3d
+from jaxgfx.raycast import default_max_steps as default_max_steps
+from jaxgfx.raycast import default_num_planes as default_num_planes
+from jaxgfx.raycast import plane_parameters as plane_parameters
+from jaxgfx.raycast import ray_buffer_coords as ray_buffer_coords
+from jaxgfx.raycast import reference_render as reference_render
+from jaxgfx.raycast import refine_hits as refine_hits
+from jaxgfx.raycast import refine_pixel as refine_pixel
+from jaxgfx.raycast import render_rle as render_rle
+from jaxgfx.raycast import screen_segments as screen_segments
+from jaxgfx.raycast import traverse_plane as traverse_plane
+from jaxgfx.raycast import vanishing_point as vanishing_point
+from jaxgfx.raycast import warp_ray_buffer as warp_ray_buffer
 from jaxgfx.scene import CharacterPass as CharacterPass
 from jaxgfx.scene import Demo as Demo
 from jaxgfx.scene import MeshPass as MeshPass
@@ -177,3 +212,29 @@ from jaxgfx.terrain import visible_faces as visible_faces
 from jaxgfx.terrain import volume_terrain as volume_terrain
 from jaxgfx.terrain import voxels_to_mesh as voxels_to_mesh
 from jaxgfx.terrain import weld_seam as weld_seam
+from jaxgfx.voxels import DRAW_BITS as DRAW_BITS
+from jaxgfx.voxels import MAX_DRAW as MAX_DRAW
+from jaxgfx.voxels import MAX_SKIP as MAX_SKIP
+from jaxgfx.voxels import MAX_VOXELS as MAX_VOXELS
+from jaxgfx.voxels import SKIP_BITS as SKIP_BITS
+from jaxgfx.voxels import RLEVolume as RLEVolume
+from jaxgfx.voxels import Voxels as Voxels
+from jaxgfx.voxels import as_jax as as_jax
+from jaxgfx.voxels import crop_voxels as crop_voxels
+from jaxgfx.voxels import decode_rle as decode_rle
+from jaxgfx.voxels import dense_to_voxels as dense_to_voxels
+from jaxgfx.voxels import downsample_voxels as downsample_voxels
+from jaxgfx.voxels import encode_rle as encode_rle
+from jaxgfx.voxels import load_kv6 as load_kv6
+from jaxgfx.voxels import load_scene as load_scene
+from jaxgfx.voxels import load_volume as load_volume
+from jaxgfx.voxels import load_vxl as load_vxl
+from jaxgfx.voxels import place_instances as place_instances
+from jaxgfx.voxels import procedural_tree as procedural_tree
+from jaxgfx.voxels import rle_stats as rle_stats
+from jaxgfx.voxels import save_scene as save_scene
+from jaxgfx.voxels import surface_mask as surface_mask
+from jaxgfx.voxels import surface_voxels as surface_voxels
+from jaxgfx.voxels import volume_to_voxels as volume_to_voxels
+from jaxgfx.voxels import voxelize_mesh as voxelize_mesh
+from jaxgfx.voxels import voxels_to_dense as voxels_to_dense

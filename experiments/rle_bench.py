@@ -1,0 +1,420 @@
+"""Table 4.1-style benchmark of the per-plane RLE ray caster (thesis 4.6).
+
+For each scene: memory (bits per voxel of position data incl. pointer map and
+mips, Table 4.1; bytes with colour, Table 4.2), RLE elements in the traversed
+columns / processed / rendered per frame, ms per frame and processed elements
+per second with 2x1 anti-aliasing (the frame is rendered at 2W x H), and, in
+the same run with the same cameras, the baselines: the per-pixel 3-D DDA
+(``reference_render``), splatting (one camera-facing quad per surface voxel
+through the rasterizer, 4.6.3) and, for meshes, the mesh's own triangles
+through the rasterizer.  Ratios are baseline time / our time.  Compile time
+(first call) is reported apart from the steady-state time.
+
+A second table checks correctness against the per-pixel DDA at five cameras
+(incl. pitch 0 and nearly straight down), and a third scales the instance
+count (Fig. 4.23 / 4.30).
+
+Usage::
+
+    python experiments/rle_bench.py --quick --out out/rle_bench
+    python experiments/rle_bench.py --out out/rle_bench
+
+Data credit: Stanford 3D Scanning Repository (bunny, dragon), VTK sample
+data (MR / CT heads), Ken Silverman's Voxlap (untitled.vxl).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgfx import raycast as RC
+from jaxgfx import voxels as V
+from jaxgfx.camera import look_at
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+render = jax.jit(
+    RC.render_rle,
+    static_argnames=("num_planes", "max_steps", "oversample", "buffer_size", "refine_steps"),
+)
+reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
+
+
+def machine() -> str:
+    devs = ", ".join(sorted({d.device_kind for d in jax.devices()}))
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"jax {jax.__version__} on {devs}"
+    )
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def markdown(rows, headers) -> str:
+    out = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+    for r in rows:
+        out.append("| " + " | ".join(str(r.get(h, "")) for h in headers) + " |")
+    return "\n".join(out) + "\n"
+
+
+# ---------------------------------------------------------------------------
+# Scenes
+# ---------------------------------------------------------------------------
+
+
+def scene_list(quick: bool):
+    """(name, voxels, mesh or None, note, prebuilt RLE or None) per available scene."""
+    import trimesh
+
+    out = []
+    key = jax.random.key(0)
+    tree_res = 48 if quick else 64
+    tree = V.procedural_tree(tree_res, key=key, depth=4)
+    k = 3 if quick else 5
+    forest = V.place_instances(
+        V.encode_rle(tree), [(i, j) for i in range(k) for j in range(k)], (k, k)
+    )
+    out.append(
+        ("forest", V.decode_rle(forest), None, f"{k * k} trees of {tree_res}^3 (instances)", forest)
+    )
+    out.append(("tree", tree, None, f"procedural, {tree_res}^3", None))
+    mres = 64 if quick else 256
+    if (DATA / "meshes").is_dir():
+        meshes = (
+            (("bunny", "bun_zipper.ply"),)
+            if quick
+            else (
+                ("bunny", "bun_zipper.ply"),
+                ("dragon", "dragon_11k.ply"),
+            )
+        )
+        for name, fname in meshes:
+            m = trimesh.load(DATA / "meshes" / fname, process=False)
+            vox = V.voxelize_mesh(m.vertices, m.faces, mres)
+            out.append((name, vox, m, f"{fname}, R={mres}", None))
+    if (DATA / "volumes").is_dir() and not quick:
+        vol, _ = V.load_volume(DATA / "volumes" / "HeadMRVolume.mhd")
+        out.append(("MR head", V.volume_to_voxels(vol, 60, up_axis=2), None, "iso 60", None))
+        ct, _ = V.load_volume(DATA / "volumes" / "headsq" / "quarter.nhdr")
+        out.append(("CT head", V.volume_to_voxels(ct, 1000, up_axis=2), None, "iso 1000", None))
+    if (DATA / "voxlap" / "untitled.vxl").is_file():
+        vxl = V.load_vxl(DATA / "voxlap" / "untitled.vxl")
+        c = 128 if quick else 384
+        lo, hi = 512 - c // 2, 512 + c // 2
+        crop = V.crop_voxels(vxl, (lo, 0, lo), (hi, 256, hi))
+        out.append(("untitled.vxl", crop, None, f"{c}x256x{c} crop", None))
+    return out
+
+
+def scene_cameras(shape, w, h, n=3):
+    """A short orbit path around the scene, looking slightly down."""
+    X, Y, Z = shape
+    c = np.array([X / 2, Y * 0.4, Z / 2])
+    r = 0.9 * max(X, Z) + 0.3 * Y
+    cams = []
+    for k in range(n):
+        a = 0.6 + 2 * np.pi * k / n
+        eye = c + np.array([r * np.sin(a), 0.45 * r + 0.3 * Y, r * np.cos(a)])
+        cams.append(look_at(eye, c, fov=55, width=w, height=h, far=1e5))
+    return cams
+
+
+def accuracy_cameras(shape, w, h):
+    """Five cameras: level (pitch 0), nearly straight down, oblique, low, close."""
+    X, Y, Z = shape
+    c = np.array([X / 2, Y * 0.45, Z / 2])
+    r = 0.9 * max(X, Z)
+    return [
+        ("pitch 0", look_at([c[0] - 0.3 * r, c[1], c[2] - 1.3 * r], c, 55, w, h, far=1e5)),
+        ("down 88", look_at([c[0] + 0.03 * r, Y + 1.2 * r, c[2]], [c[0], 0, c[2]], 55, w, h)),
+        ("oblique", look_at(c + [1.0 * r, 0.8 * r, 0.9 * r], c, 55, w, h, far=1e5)),
+        ("low", look_at(c + [-1.2 * r, -0.2 * Y, 0.5 * r], c, 55, w, h, far=1e5)),
+        ("close", look_at(c + [0.5 * r, 0.3 * r, -0.6 * r], c, 60, w, h, far=1e5)),
+    ]
+
+
+# ---------------------------------------------------------------------------
+# Baselines
+# ---------------------------------------------------------------------------
+
+
+def splat_quads(centers, colors, cam, size=1.2):
+    """One camera-facing quad (two triangles) per surface voxel (4.6.3)."""
+    from jaxgfx.camera import camera_basis
+
+    right, up, _ = camera_basis(cam)
+    hs = 0.5 * size
+    offs = jnp.stack([-right - up, right - up, right + up, -right + up]) * hs
+    verts = (centers[:, None, :] + offs[None]).reshape(-1, 3)
+    n = centers.shape[0]
+    base = 4 * jnp.arange(n, dtype=jnp.int32)[:, None]
+    faces = jnp.concatenate([base + jnp.array([0, 1, 2]), base + jnp.array([0, 2, 3])], axis=0)
+    attrs = jnp.repeat(colors, 4, axis=0)
+    return verts, faces.astype(jnp.int32), attrs
+
+
+def make_splat_fn():
+    from jaxgfx.raster import rasterize
+
+    def fn(centers, colors, cam):
+        v, f, a = splat_quads(centers, colors, cam)
+        return rasterize(cam, v, f, a)
+
+    return jax.jit(fn)
+
+
+def make_mesh_fn():
+    from jaxgfx.raster import rasterize
+
+    return jax.jit(lambda cam, v, f, a: rasterize(cam, v, f, a))
+
+
+def timed(fn, cams, repeats=1):
+    """(first-call seconds, steady seconds per frame, last output)."""
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(cams[0]))
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        for cam in cams:
+            t0 = time.perf_counter()
+            out = jax.block_until_ready(fn(cam))
+            times.append(time.perf_counter() - t0)
+    return first, float(np.median(times)), out
+
+
+def aa_2x1(img):
+    """2x1 anti-aliasing: average horizontal pixel pairs (4.5.6.2)."""
+    return 0.5 * (img[:, 0::2] + img[:, 1::2])
+
+
+def agreement(out_depth, out_color, ref_depth, ref_color):
+    d1, d2 = np.asarray(out_depth), np.asarray(ref_depth)
+    h1, h2 = np.isfinite(d1), np.isfinite(d2)
+    union = h1 | h2
+    dd = np.abs(np.where(h1, d1, 0) - np.where(h2, d2, 0))
+    depth_ok = (h1 == h2) & (~h1 | (dd <= 1.0))
+    diff = np.abs(np.asarray(out_color) - np.asarray(ref_color))
+    col_ok = (h1 == h2) & np.all(diff < 1e-3, -1)
+    n = max(int(union.sum()), 1)
+    return depth_ok[union].sum() / n, col_ok[union].sum() / n, int(union.sum())
+
+
+# ---------------------------------------------------------------------------
+# Main
+# ---------------------------------------------------------------------------
+
+
+def run(args):
+    quick = args.quick
+    sizes = [(128, 96)] if quick else [(512, 384), (1024, 768)]
+    base_limit = 256 * 192 if quick else 512 * 384
+    n_cams = 2 if quick else 3
+    print(f"machine: {machine()}")
+    rows, acc_rows, scale_rows = [], [], []
+    scenes = scene_list(quick)
+    splat_fn = make_splat_fn()
+    mesh_fn = make_mesh_fn()
+    for name, vox, mesh, note, pre in scenes:
+        rle_np = V.encode_rle(vox, levels=1) if pre is None else pre
+        st = V.rle_stats(V.encode_rle(vox, levels=4) if pre is None else pre)
+        rle = V.as_jax(rle_np)
+        occ, col = (jnp.asarray(a) for a in V.voxels_to_dense(vox))
+        centers = jnp.asarray(vox.coords, jnp.float32) + 0.5
+        colors = jnp.asarray(vox.colors, jnp.float32) / 255.0
+        for w, h in sizes:
+            if w > 512 and name not in ("forest", "bunny", "untitled.vxl"):
+                continue  # keep the full run within the CPU budget
+            cams = scene_cameras(vox.shape, 2 * w, h, n_cams)  # 2x1 AA: render 2W x H
+            f_ours = lambda c, r=rle: render(r, c)  # noqa: E731
+            first, ours, out = timed(f_ours, cams)
+            stats = {k: int(v) for k, v in out.stats.items()}
+            aa = aa_2x1(out.color)
+            assert aa.shape == (h, w, 3)
+            row = dict(
+                scene=name,
+                note=note,
+                size=f"{w}x{h} (2x1 AA)",
+                voxels=st["voxels"],
+                bits_per_voxel=round(st["bits_per_voxel"], 2),
+                bytes_per_voxel=round(st["bytes_per_voxel_with_color"], 2),
+                el_total_M=round(stats["elements_total"] / 1e6, 3),
+                el_processed_M=round(stats["elements_processed"] / 1e6, 3),
+                el_rendered_M=round(stats["elements_rendered"] / 1e6, 3),
+                overflow=stats["buffer_overflow"],
+                ours_ms=round(1e3 * ours, 1),
+                ours_compile_s=round(first - ours, 1),
+                Melem_per_s=round(stats["elements_processed"] / ours / 1e6, 2),
+            )
+            if w * h <= base_limit:
+                f_ref = lambda c, o=occ, k=col: reference(o, k, c)[0]  # noqa: E731
+                _, t_ref, _ = timed(f_ref, cams)
+                row["dda_ms"] = round(1e3 * t_ref, 1)
+                row["dda/ours"] = round(t_ref / ours, 2)
+                if len(vox.coords) <= 600_000:
+                    f_sp = lambda c, a=centers, b=colors: splat_fn(a, b, c)  # noqa: E731
+                    _, t_sp, _ = timed(f_sp, cams)
+                    row["splat_ms"] = round(1e3 * t_sp, 1)
+                    row["splat/ours"] = round(t_sp / ours, 2)
+                if mesh is not None:
+                    v = np.asarray(mesh.vertices, np.float64)
+                    lo = v.min(0)
+                    scale = max(vox.shape) / (v.max(0) - lo).max()
+                    mv = jnp.asarray((v - lo) * scale, jnp.float32)
+                    mf = jnp.asarray(mesh.faces, jnp.int32)
+                    ma = jnp.ones_like(mv)
+                    f_mesh = lambda c, a=mv, b=mf, d=ma: mesh_fn(c, a, b, d)  # noqa: E731
+                    _, t_mesh, _ = timed(f_mesh, cams)
+                    row["mesh_ms"] = round(1e3 * t_mesh, 1)
+                    row["mesh/ours"] = round(t_mesh / ours, 2)
+            print(json.dumps(row))
+            rows.append(row)
+        if name in ("bunny", "dragon", "untitled.vxl"):
+            # Quick mode reuses the timing frame size, so no extra compilation.
+            aw, ah = (2 * sizes[0][0], sizes[0][1]) if quick else (512, 384)
+            for cname, cam in accuracy_cameras(vox.shape, aw, ah):
+                ref, _ = reference(occ, col, cam)
+                plain = render(rle, cam)
+                fine = render(rle, cam, refine_steps=16)
+                dp, cp, n = agreement(plain.depth, plain.color, ref.depth, ref.color)
+                df, cf, _ = agreement(fine.depth, fine.color, ref.depth, ref.color)
+                r = dict(
+                    scene=name,
+                    camera=cname,
+                    size=f"{aw}x{ah}",
+                    hit_pixels=n,
+                    depth_agree=round(100 * dp, 2),
+                    color_agree=round(100 * cp, 2),
+                    depth_agree_refined=round(100 * df, 2),
+                    color_agree_refined=round(100 * cf, 2),
+                )
+                print(json.dumps(r))
+                acc_rows.append(r)
+    # Scaling with instances (Fig. 4.23 / 4.30): ours vs splatting.
+    tree = scenes[1][1]
+    rle1 = V.encode_rle(tree, levels=1)
+    tx, _, tz = tree.shape
+    counts = [1, 4] if quick else [1, 100, 1600]
+    w, h = (128, 96) if quick else (512, 384)
+    for n in counts:
+        k = int(np.ceil(np.sqrt(n)))
+        tiles = [(i, j) for i in range(k) for j in range(k)][:n]
+        offs = [(i * tx, j * tz) for i, j in tiles]
+        scene = V.place_instances(rle1, tiles, (k, k))
+        st = V.rle_stats(scene)
+        jscene = V.as_jax(scene)
+        X, Y, Z = scene.shape
+        c = np.array([X / 2, 0.3 * Y, Z / 2])
+        cams = [
+            look_at(c + [0.7 * X, 0.5 * X + Y, 0.6 * Z], c, 55, 2 * w, h, far=1e5),
+            look_at(c + [-0.6 * X, 0.4 * X + Y, 0.7 * Z], c, 55, 2 * w, h, far=1e5),
+        ]
+        r = dict(
+            instances=n,
+            map=f"{X}x{Z}",
+            voxels=st["voxels"],
+            ours_bytes=st["bytes_with_color"],
+        )
+        if X * Z <= (1024 * 1024 if not quick else 256 * 256):
+            first, ours, out = timed(lambda cam, s=jscene: render(s, cam), cams)  # noqa: B023
+            r["ours_ms"] = round(1e3 * ours, 1)
+            r["ours_compile_s"] = round(first - ours, 1)
+            r["el_processed_M"] = round(int(out.stats["elements_processed"]) / 1e6, 3)
+        n_splats = n * len(tree.coords)
+        r["splat_bytes"] = n_splats * (3 * 4 + 3)
+        if n_splats <= 600_000 and "ours_ms" in r:
+            cen = np.concatenate([tree.coords + [ox, 0, oz] for ox, oz in offs]) + 0.5
+            cen = jnp.asarray(cen, jnp.float32)
+            colr = jnp.asarray(np.concatenate([tree.colors] * n), jnp.float32) / 255.0
+            _, t_sp, _ = timed(lambda cam, a=cen, b=colr: splat_fn(a, b, cam), cams)  # noqa: B023
+            r["splat_ms"] = round(1e3 * t_sp, 1)
+            r["splat/ours"] = round(t_sp / ours, 2)
+        print(json.dumps(r))
+        scale_rows.append(r)
+    bits_rows = []
+    if args.bits_res and (DATA / "meshes").is_dir():
+        import trimesh
+
+        for name, fname in (("bunny", "bun_zipper.ply"), ("dragon", "dragon_11k.ply")):
+            m = trimesh.load(DATA / "meshes" / fname, process=False)
+            t0 = time.perf_counter()
+            vox = V.voxelize_mesh(m.vertices, m.faces, args.bits_res)
+            st = V.rle_stats(V.encode_rle(vox, levels=int(np.log2(args.bits_res)) + 1))
+            r = dict(
+                scene=name,
+                resolution=args.bits_res,
+                shape="x".join(map(str, vox.shape)),
+                voxels=st["voxels"],
+                rle_elements_M=round(st["rle_elements_level0"] / 1e6, 3),
+                bits_per_voxel=round(st["bits_per_voxel"], 2),
+                thesis_bits_per_voxel={"bunny": 22.89, "dragon": 26.3}[name],
+                bytes_per_voxel_with_color=round(st["bytes_per_voxel_with_color"], 2),
+                seconds=round(time.perf_counter() - t0, 1),
+            )
+            print(json.dumps(r))
+            bits_rows.append(r)
+    return rows, acc_rows, scale_rows, bits_rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, under a minute-ish")
+    ap.add_argument("--out", default=None, help="folder for table.md / table.json")
+    ap.add_argument("--bits-res", type=int, default=None,
+                    help="also voxelize bunny and dragon at this resolution for bits/voxel "
+                    "(default: 1024, or off with --quick)")  # fmt: skip
+    args = ap.parse_args(argv)
+    if args.bits_res is None:
+        args.bits_res = 0 if args.quick else 1024
+    rows, acc, scale, bits = run(args)
+    h1 = ["scene", "note", "size", "voxels", "bits_per_voxel", "bytes_per_voxel", "el_total_M",
+          "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
+          "Melem_per_s", "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
+          "mesh/ours"]  # fmt: skip
+    h2 = ["scene", "camera", "size", "hit_pixels", "depth_agree", "color_agree",
+          "depth_agree_refined", "color_agree_refined"]  # fmt: skip
+    h3 = ["instances", "map", "voxels", "ours_bytes", "splat_bytes", "ours_ms",
+          "ours_compile_s", "el_processed_M", "splat_ms", "splat/ours"]  # fmt: skip
+    h4 = ["scene", "resolution", "shape", "voxels", "rle_elements_M", "bits_per_voxel",
+          "thesis_bits_per_voxel", "bytes_per_voxel_with_color", "seconds"]  # fmt: skip
+    text = (
+        f"Machine: {machine()}\n\n## Table 4.1-style benchmark\n\n"
+        + markdown(rows, h1)
+        + "\n## Agreement with the per-pixel 3-D DDA (% of pixels hit by either)\n\n"
+        + markdown(acc, h2)
+        + "\n## Instances (Fig. 4.23 / 4.30)\n\n"
+        + markdown(scale, h3)
+        + "\n## Memory at the thesis resolution (Table 4.1, position data incl. mips)\n\n"
+        + markdown(bits, h4)
+    )
+    print(text)
+    if args.out:
+        out = Path(args.out)
+        _atomic_text(out / "table.md", text)
+        _atomic_text(
+            out / "table.json",
+            json.dumps(
+                dict(machine=machine(), rows=rows, accuracy=acc, instances=scale, memory=bits),
+                indent=1,
+            ),
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

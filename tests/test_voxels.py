@@ -1,0 +1,311 @@
+"""Voxel inputs, surface extraction and the RLE structure (thesis 4.3, 4.4.6, 4.4.7)."""
+
+from __future__ import annotations
+
+import struct
+
+import jax
+import numpy as np
+import pytest
+
+from jaxgfx import voxels as V
+
+
+def _random_voxels(rng, shape, n):
+    c = np.stack([rng.integers(0, s, n) for s in shape], axis=1)
+    col = rng.integers(0, 256, (n, 3)).astype(np.uint8)
+    return V._make_voxels(c, col, shape)
+
+
+def _same(a: V.Voxels, b: V.Voxels):
+    ka = V._keys(a.coords, a.shape)
+    kb = V._keys(b.coords, b.shape)
+    ia, ib = np.argsort(ka), np.argsort(kb)
+    assert a.shape == b.shape
+    np.testing.assert_array_equal(ka[ia], kb[ib])
+    np.testing.assert_array_equal(a.colors[ia], b.colors[ib])
+
+
+def _decode_column_numpy(first, rest, height):
+    """Slow reference decoder for one column: list of (y, colour slot)."""
+    ys = []
+    y = height
+    for el in [first, *rest]:
+        skip, draw = int(el) >> 6, int(el) & 63
+        y -= skip
+        for _ in range(draw):
+            y -= 1
+            ys.append(y)
+    return ys
+
+
+def test_round_trip_random_with_mips():
+    rng = np.random.default_rng(0)
+    vox = _random_voxels(rng, (9, 40, 7), 900)
+    rle = V.encode_rle(vox, levels=3)
+    _same(V.decode_rle(rle, 0), vox)
+    # Mip levels decode to the 2x down-sampled voxels (4.4.7).
+    _same(V.decode_rle(rle, 1), V.downsample_voxels(vox))
+    _same(V.decode_rle(rle, 2), V.downsample_voxels(V.downsample_voxels(vox)))
+
+
+def test_long_runs_and_long_skips_split():
+    # One column, 3000 high: a 200-voxel run at the top (> 63 drawn), then a
+    # gap of 2500 (> 1023 skipped), then a 5-voxel run.
+    H = 3000
+    ys = list(range(H - 1, H - 201, -1)) + list(range(H - 201 - 2500, H - 201 - 2505, -1))
+    coords = np.array([[0, y, 0] for y in ys])
+    colors = (np.arange(len(ys))[:, None] * [1, 3, 7] % 256).astype(np.uint8)
+    vox = V._make_voxels(coords, colors, (1, H, 1))
+    rle = V.encode_rle(vox)
+    _same(V.decode_rle(rle), vox)
+    els = [int(rle.first[0])] + [int(e) for e in rle.elements[: int(rle.count[0]) - 1]]
+    skip = [e >> 6 for e in els]
+    draw = [e & 63 for e in els]
+    assert max(draw) <= 63 and max(skip) <= 1023
+    assert sum(draw) == len(ys)
+    assert (1023 in skip) and draw.count(63) == 3  # 200 = 63 + 63 + 63 + 11
+    # The slow reference decoder agrees.
+    got = _decode_column_numpy(els[0], els[1:], H)
+    assert got == sorted(ys, reverse=True)
+
+
+def test_first_element_inline_and_layout():
+    vox = V._make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
+    rle = V.encode_rle(vox)
+    # Column (0, 0): skip 0 draw 2, then skip 2 draw 1 (Fig. 4.11 layout).
+    assert int(rle.first[0]) == (0 << 6) | 2
+    assert int(rle.count[0]) == 2
+    assert int(rle.elements[int(rle.ptr[0])]) == (2 << 6) | 1
+    assert int(rle.count[1]) == 0 and int(rle.count[2]) == 0
+    assert int(rle.first[3]) == 1 and int(rle.count[3]) == 1
+
+
+def test_bits_per_voxel_accounting():
+    vox = V._make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
+    st = V.rle_stats(V.encode_rle(vox))
+    # 4 pointer-map entries x 64 bits + 1 stored element x 16 bits, over 4 voxels.
+    assert st["bits_per_voxel"] == pytest.approx((4 * 64 + 16) / 4)
+    assert st["rle_elements"] == 3
+    assert st["bytes_with_color"] == (4 * 64 + 16) // 8 + 3 * 4 + 4 * 4
+
+
+def test_surface_mask_matches_bruteforce():
+    rng = np.random.default_rng(1)
+    occ = rng.random((6, 5, 7)) < 0.6
+    got = V.surface_mask(occ)
+    want = np.zeros_like(occ)
+    for x, y, z in np.argwhere(occ):
+        for d in [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]:
+            n = (x + d[0], y + d[1], z + d[2])
+            if not all(0 <= n[i] < occ.shape[i] for i in range(3)) or not occ[n]:
+                want[x, y, z] = True
+    np.testing.assert_array_equal(got, want)
+    # The sparse version agrees with the dense one.
+    col = np.zeros(occ.shape + (3,), np.uint8)
+    dense = V.dense_to_voxels(occ, col)
+    sparse = V.surface_voxels(V.dense_to_voxels(occ, col, surface=False))
+    _same(dense, sparse)
+
+
+def test_voxelize_cube_shell_exact():
+    # A cube's 12 triangles at resolution 16 give exactly the 16^3 - 14^3 shell.
+    v = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    f = np.array(
+        [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    )  # fmt: skip
+    vox = V.voxelize_mesh(v, f, 16)
+    assert vox.shape == (16, 16, 16)
+    occ, _ = V.voxels_to_dense(vox)
+    want = np.ones((16, 16, 16), bool)
+    want[1:-1, 1:-1, 1:-1] = False
+    np.testing.assert_array_equal(occ, want)
+    # Vertex colours are interpolated.
+    vc = np.tile([[200, 10, 10]], (8, 1))
+    vox = V.voxelize_mesh(v, f, 8, vertex_colors=vc)
+    assert np.all(vox.colors == [200, 10, 10])
+
+
+def test_voxelize_bad_input():
+    v = np.zeros((3, 3))
+    f = np.array([[0, 1, 2]])
+    with pytest.raises(ValueError, match="resolution"):
+        V.voxelize_mesh(v + np.eye(3), f, 0)
+    with pytest.raises(ValueError, match="absurdly large"):
+        V.voxelize_mesh(v + np.eye(3), f, 10**6)
+    with pytest.raises(TypeError, match="resolution"):
+        V.voxelize_mesh(v + np.eye(3), f, 4.5)
+    with pytest.raises(ValueError, match="zero extent"):
+        V.voxelize_mesh(v, f, 8)
+    with pytest.raises(ValueError, match="faces"):
+        V.voxelize_mesh(v + np.eye(3), np.array([[0, 1, 5]]), 8)
+
+
+def test_procedural_tree_seeded():
+    a = V.procedural_tree(32, key=jax.random.key(3), depth=3)
+    b = V.procedural_tree(32, key=jax.random.key(3), depth=3)
+    c = V.procedural_tree(32, key=jax.random.key(4), depth=3)
+    _same(a, b)
+    assert len(a.coords) > 100
+    assert not (len(a.coords) == len(c.coords) and np.array_equal(a.coords, c.coords))
+    # Surface only: no voxel has all six neighbours set.
+    occ, _ = V.voxels_to_dense(a)
+    assert np.array_equal(V.surface_mask(occ), occ)
+    # Trunk at the bottom centre.
+    assert a.coords[:, 1].min() == 0
+
+
+def test_place_instances_shares_columns():
+    rng = np.random.default_rng(2)
+    vox = _random_voxels(rng, (4, 10, 6), 60)
+    rle = V.encode_rle(vox, levels=2)
+    tiles = [[0, 0], [2, 1], [1, 2]]
+    scene = V.place_instances(rle, tiles, (3, 3))
+    assert scene.elements is rle.elements and scene.colors is rle.colors
+    assert scene.count is rle.count  # not even the pointer map is copied
+    assert scene.shape == (12, 10, 18)
+    got = V.decode_rle(scene)
+    want = V._make_voxels(
+        np.concatenate([vox.coords + [t[0] * 4, 0, t[1] * 6] for t in tiles]),
+        np.concatenate([vox.colors] * 3),
+        (12, 10, 18),
+    )
+    _same(got, want)
+    # Memory grows by one 32-bit tile entry per map tile only.
+    one, many = (
+        V.rle_stats(rle),
+        V.rle_stats(V.place_instances(rle, np.argwhere(np.ones((9, 9))), (9, 9))),
+    )
+    assert many["position_bytes"] - one["position_bytes"] == 81 * 4
+    with pytest.raises(ValueError, match="overlaps"):
+        V.place_instances(rle, [[0, 0], [0, 0]], (3, 3))
+    with pytest.raises(ValueError, match="leaves"):
+        V.place_instances(rle, [[3, 0]], (3, 3))
+    with pytest.raises(ValueError, match="multiples"):
+        V.place_instances(
+            V.encode_rle(_random_voxels(rng, (5, 4, 4), 9), levels=2), [[0, 0]], (2, 2)
+        )
+
+
+def test_scene_save_load(tmp_path):
+    rng = np.random.default_rng(5)
+    vox = _random_voxels(rng, (5, 6, 7), 40)
+    V.save_scene(tmp_path / "s.npz", vox)
+    _same(V.load_scene(tmp_path / "s.npz"), vox)
+    with pytest.raises(ValueError, match="not found"):
+        V.load_scene(tmp_path / "missing.npz")
+
+
+# ---------------------------------------------------------------------------
+# Real data
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name,count,shape",
+    [
+        ("caco", 12649, (85, 68, 72)),
+        ("barrel", 10788, (52, 60, 52)),
+        ("anasplit", 26136, (82, 229, 35)),
+    ],
+)
+def test_kv6_counts(data_dir, name, count, shape):
+    vox = V.load_kv6(data_dir / "voxlap" / f"{name}.kv6")
+    assert len(vox.coords) == count and vox.shape == shape
+    _same(V.decode_rle(V.encode_rle(vox)), vox)
+
+
+def test_kv6_truncated_and_bad_magic(data_dir, tmp_path):
+    raw = (data_dir / "voxlap" / "barrel.kv6").read_bytes()
+    p = tmp_path / "t.kv6"
+    p.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match="truncated"):
+        V.load_kv6(p)
+    p.write_bytes(b"Kvxx" + raw[4:])
+    with pytest.raises(ValueError, match="magic"):
+        V.load_kv6(p)
+
+
+def test_vxl_counts_and_round_trip(data_dir):
+    vox = V.load_vxl(data_dir / "voxlap" / "untitled.vxl")
+    assert len(vox.coords) == 1_852_925
+    assert vox.shape == (1024, 256, 1024)
+    # Round trip on a crop keeps the test quick.
+    crop = V.crop_voxels(vox, (300, 0, 300), (428, 256, 428))
+    _same(V.decode_rle(V.encode_rle(crop, levels=2)), crop)
+
+
+def test_vxl_truncated(data_dir, tmp_path):
+    raw = (data_dir / "voxlap" / "untitled.vxl").read_bytes()
+    p = tmp_path / "t.vxl"
+    p.write_bytes(raw[:200_000])
+    with pytest.raises(ValueError, match="truncated|corrupt|columns"):
+        V.load_vxl(p)
+    p.write_bytes(struct.pack("<I", 0x1234) + raw[4:1000])
+    with pytest.raises(ValueError, match="magic"):
+        V.load_vxl(p)
+
+
+def test_volumes_and_errors(data_dir, tmp_path):
+    vol, spacing = V.load_volume(data_dir / "volumes" / "HeadMRVolume.mhd")
+    assert vol.shape == (48, 62, 42) and vol.dtype == np.uint8
+    np.testing.assert_allclose(spacing, [4, 4, 4])
+    ct, _ = V.load_volume(data_dir / "volumes" / "headsq" / "quarter.nhdr")
+    assert ct.shape == (64, 64, 93) and ct.dtype == np.int16
+    vox = V.volume_to_voxels(ct, 1000, up_axis=2)
+    assert vox.shape == (64, 93, 64) and len(vox.coords) > 1000
+    occ = np.transpose(ct, (0, 2, 1)) >= 1000
+    np.testing.assert_array_equal(V.voxels_to_dense(vox)[0], V.surface_mask(occ))
+    with pytest.raises(ValueError, match="iso"):
+        V.volume_to_voxels(vol, 300)
+    with pytest.raises(ValueError, match="iso"):
+        V.volume_to_voxels(vol, 0)
+    # A raw file of the wrong size for its header.
+    (tmp_path / "v.raw").write_bytes(b"\0" * 100)
+    (tmp_path / "v.mhd").write_text(
+        "NDims = 3\nDimSize = 4 4 4\nElementType = MET_UCHAR\nElementDataFile = v.raw\n"
+    )
+    with pytest.raises(ValueError, match="bytes"):
+        V.load_volume(tmp_path / "v.mhd")
+    with pytest.raises(ValueError, match="extension"):
+        V.load_volume(tmp_path / "v.raw")
+
+
+def test_cli_voxelize_and_render(tmp_path, capsys):
+    import argparse
+    import json
+
+    from jaxgfx import _cli_voxels
+
+    parser = argparse.ArgumentParser()
+    _cli_voxels.register(parser.add_subparsers())
+    scene = tmp_path / "tree.npz"
+    args = parser.parse_args(["voxelize", "tree", "--resolution", "16", "--out", str(scene)])
+    assert args.func(args) == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    vox = V.load_scene(scene)
+    assert line["voxels"] == len(vox.coords) > 0
+    assert line["bits_per_voxel"] > 0
+    png, dep = tmp_path / "f.png", tmp_path / "d.npy"
+    argv = ["render-voxels", str(scene), "--camera", "8,6,-20,0,0", "--fov", "60",
+            "--size", "24x16", "--out", str(png), "--depth", str(dep)]  # fmt: skip
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    depth = np.load(dep)
+    assert depth.shape == (16, 24) and np.isfinite(depth).any() and not np.isnan(depth).any()
+    assert png.stat().st_size > 0
+    # Resolution is for meshes and trees only; it must be positive.
+    args = parser.parse_args(["voxelize", "x.kv6", "--resolution", "8", "--out", "o.npz"])
+    with pytest.raises(ValueError, match="resolution"):
+        args.func(args)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["voxelize", "tree", "--resolution", "0", "--out", "o.npz"])
+    # A camera inside solid voxels is refused before rendering.
+    solid = V.dense_to_voxels(np.ones((4, 4, 4), bool), np.full((4, 4, 4, 3), 7, np.uint8))
+    V.save_scene(tmp_path / "solid.npz", solid)
+    argv = ["render-voxels", str(tmp_path / "solid.npz"), "--camera", "0.5,3.5,2.5,0,0",
+            "--size", "8x8", "--out", str(png)]  # fmt: skip
+    args = parser.parse_args(argv)
+    with pytest.raises(ValueError, match="inside a solid voxel"):
+        args.func(args)
