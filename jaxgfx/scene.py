@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx import skin, terrain
+from jaxgfx import post, raycast, skin, terrain, voxels
 from jaxgfx.camera import Camera
 from jaxgfx.compose import Frame, background, composite, fog, lambert
 from jaxgfx.raster import rasterize, validate_mesh, vertex_normals
@@ -37,6 +37,9 @@ __all__ = [
     "build_demo",
     "demo_terrain",
     "terrain_mesh_pass",
+    "VoxelPass",
+    "demo_forest",
+    "render_voxel_pass",
 ]
 
 
@@ -265,7 +268,7 @@ def demo_terrain(*, key: jax.Array, size: int = 32, levels: int = 3):
     for cx, cz, a, w in p:
         cx, cz, a, w = (cx - 0.5) * n, (cz - 0.5) * n, -6 + 20 * a, 8 + 16 * w
         h += a * np.exp(-((gx - cx) ** 2 + (gz - cz) ** 2) / (2 * w * w))
-    h *= np.clip((np.hypot(gx, gz) - 20) / 16, 0, 1)
+    h *= np.clip((np.hypot(gx, gz) - 48) / 24, 0, 1)
     # The heightmap tiles with period n; centre the flat part on the origin.
     hills = terrain.heightmap_terrain(np.fft.ifftshift(h), base=int(np.floor(h.min())))
     rocks = terrain.random_csg_terrain(
@@ -296,6 +299,56 @@ def terrain_mesh_pass(levels, voxel_size: float, color=(0.62, 0.56, 0.46)) -> Me
     )
 
 
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class VoxelPass:
+    """Static objects as run-length-encoded surface voxels placed in the world (thesis ch. 4).
+
+    The ray caster works in voxel units; the pass moves and scales the shared
+    camera into them (same orientation, field of view and resolution), so the
+    depth it returns converts back to world units exactly.
+
+    Attributes:
+        rle: the (possibly instanced) scene, device arrays.
+        origin: (3,) world position of voxel (0, 0, 0).
+        voxel_size: () world units per voxel.
+        num_planes: static ray-buffer planes (None: the renderer's default).
+    """
+
+    rle: voxels.RLEVolume
+    origin: jax.Array
+    voxel_size: jax.Array
+    num_planes: int | None = dataclasses.field(metadata=dict(static=True), default=None)
+
+
+def demo_forest(*, key: jax.Array, origin=(-26.9, 0.0, 15.0), voxel_size: float = 0.14):
+    """A row of procedural voxel trees (4.3.3) as instances of one RLE object (4.4.6)."""
+    tree = voxels.procedural_tree(64, key=key, depth=4)
+    rle = voxels.encode_rle(tree, levels=2)
+    tiles = [(0, 0), (1, 1), (2, 0), (3, 1), (4, 0), (5, 1)]
+    forest = voxels.place_instances(rle, tiles, (6, 2))
+    return VoxelPass(
+        voxels.as_jax(forest),
+        jnp.asarray(origin, jnp.float32),
+        jnp.float32(voxel_size),
+    )
+
+
+def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
+    """Per-plane RLE ray casting with the shared camera, shaded by screen-space normals."""
+    local = dataclasses.replace(
+        cam,
+        position=(cam.position - vp.origin) / vp.voxel_size,
+        near=cam.near / vp.voxel_size,
+        far=cam.far / vp.voxel_size,
+    )
+    out = raycast.render_rle(vp.rle, local, num_planes=vp.num_planes)
+    normals = post.screen_space_normals(local, out.depth, key=key, samples=8)
+    color = post.shade(out.color, normals)
+    hit = jnp.isfinite(out.depth)
+    return Frame(jnp.where(hit[..., None], color, 0.0), out.depth * vp.voxel_size)
+
+
 def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
     """Builds the default scene (no data files needed) and its jitted passes.
 
@@ -308,11 +361,12 @@ def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
 
     from jaxgfx.camera import look_at
 
-    k_terrain, k_objects = jax.random.split(key)
+    k_terrain, k_objects, k_trees, k_ssn = jax.random.split(key, 4)
     cam = look_at([0.0, 6.0, -14.0], [1.0, 1.5, 6.0], 55.0, width, height, 0.1, 500.0)
     meshes = merge_mesh_passes(demo_meshes(key=k_objects)[1:])  # primitives, no ground
     ch = demo_character_pass(offset=(3.2, 0.0, -1.5), scale=1.6)
     pipe = demo_terrain(key=k_terrain)
+    forest = demo_forest(key=k_trees)
     voxel = 0.5  # world units per level-0 voxel
 
     def generate_terrain(viewer):
@@ -333,6 +387,12 @@ def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
         ("terrain pass (rasterizer)", render, (cam, terrain_pass), None),
         ("polygon pass (rasterizer)", render, (cam, meshes), None),
         (
+            "static objects pass (RLE voxel forest, per-plane ray caster)",
+            jax.jit(lambda c, vp, k: render_voxel_pass(c, vp, key=k)),
+            (cam, forest, k_ssn),
+            None,
+        ),
+        (
             "character pass (spline skinning + style + rasterizer)",
             jax.jit(lambda c, ch, ph: render_character(c, ch, character_pose(ch, ph))),
             (cam, ch, jnp.float32(0.3)),
@@ -340,7 +400,8 @@ def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
         ),
     ]
     desc = (
-        f"terrain: {int(terrain_pass.faces.shape[0])} triangles; primitives: "
+        f"terrain: {int(terrain_pass.faces.shape[0])} triangles; forest: 6 instances of one "
+        f"procedural voxel tree; primitives: "
         f"{int(meshes.faces.shape[0])} triangles; character: "
         f"{int(ch.binding.rest.shape[0])} vertices on a spline rig with the muscle style"
     )
