@@ -338,7 +338,7 @@ def visibility(
 
 
 def coverage_count(
-    cam: Camera, vertices: jax.Array, faces: jax.Array, *, block: int = 4, chunk: int = 32768
+    cam: Camera, vertices: jax.Array, faces: jax.Array, *, block: int = 2, chunk: int = 32768
 ) -> jax.Array:
     """How many faces cover each pixel centre, ignoring depth (overdraw).
 
@@ -427,7 +427,7 @@ def rasterize(
     attributes: jax.Array | None = None,
     *,
     cull_backfaces: bool = False,
-    block: int = 4,
+    block: int = 2,
     chunk: int = 32768,
 ) -> RasterOutput:
     """Renders a triangle mesh with a z-buffer.
