@@ -29,6 +29,7 @@ from jaxgfx.camera import camera_basis, look_at, pixel_rays  # noqa: E402
 from jaxgfx.compose import depth_image  # noqa: E402
 from jaxgfx.io import load_mesh, save_png  # noqa: E402
 from jaxgfx.raster import rasterize  # noqa: E402
+from jaxgfx.scene import grid_faces  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
@@ -38,13 +39,7 @@ def heightfield(n: int) -> trimesh.Trimesh:
     x, z = np.meshgrid(np.linspace(-50, 50, n), np.linspace(0, 100, n))
     y = 3 * np.sin(x / 5) * np.cos(z / 7) + 1.5 * np.sin(x / 1.7 + z / 2.3)
     v = np.stack([x, y, z], -1).reshape(-1, 3)
-    i = np.arange(n - 1)
-    ii, jj = np.meshgrid(i, i)
-    a = (jj * n + ii).ravel()
-    b, c = a + 1, a + n
-    d = c + 1
-    f = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
-    return trimesh.Trimesh(v, f, process=False)
+    return trimesh.Trimesh(v, grid_faces(n), process=False)
 
 
 def scenes(quick: bool):

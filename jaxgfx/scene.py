@@ -29,6 +29,7 @@ __all__ = [
     "render_mesh_pass",
     "render_frame",
     "demo_meshes",
+    "grid_faces",
     "CharacterPass",
     "demo_character_pass",
     "character_pose",
@@ -123,6 +124,19 @@ def render_frame(
     return fog(composite(frames), density=fog_density)
 
 
+def grid_faces(n: int) -> np.ndarray:
+    """Faces (2 (n-1)^2, 3) int32 of an n x n vertex grid in row-major order, two per cell.
+
+    Counter-clockwise seen from +y when rows run along +z and columns along +x.
+    """
+    i = np.arange(n - 1)
+    ii, jj = np.meshgrid(i, i)
+    a = (jj * n + ii).ravel()
+    b, c = a + 1, a + n
+    d = c + 1
+    return np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]).astype(np.int32)
+
+
 def demo_meshes(*, key: jax.Array, ground_cells: int = 96) -> list[MeshPass]:
     """The default demo scene: rolling ground, a sphere, a torus, a capsule, boxes.
 
@@ -143,12 +157,7 @@ def demo_meshes(*, key: jax.Array, ground_cells: int = 96) -> list[MeshPass]:
     # Keep the middle flat where the objects stand.
     gy *= np.clip((np.hypot(gx, gz) - 6.0) / 6.0, 0.0, 1.0)
     gv = np.stack([gx, gy, gz], -1).reshape(-1, 3)
-    i = np.arange(n - 1)
-    ii, jj = np.meshgrid(i, i)
-    a = (jj * n + ii).ravel()
-    b, c = a + 1, a + n
-    d = c + 1
-    gf = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+    gf = grid_faces(n)
     shade = np.clip(0.35 + 0.12 * gy, 0.2, 0.8)[..., None].reshape(-1, 1)
     gc = np.concatenate([0.45 * shade + 0.15, 0.55 + 0.0 * shade, 0.25 * shade + 0.1], -1)
     out = [mesh_pass(gv.astype(np.float32), gf.astype(np.int32), gc.astype(np.float32))]
