@@ -682,6 +682,26 @@ def _voxel_lookup(rle, x, y, z):
     return inside & jnp.any(hit), cidx + top[j] - y
 
 
+def _dda_entry(shape, origin, direction, t_start):
+    """Entry of a ray into the grid ``[0, shape)`` for an Amanatides-Woo 3-D DDA.
+
+    Returns:
+        ``(1/direction, t_enter, t_exit, first voxel index, step, axis-parallel mask)``.
+    """
+    dims = jnp.asarray(shape, jnp.float32)
+    inv = _safe_div(1.0, direction, 1e-12)
+    t0 = (0.0 - origin) * inv
+    t1 = (dims - origin) * inv
+    t_enter = jnp.maximum(jnp.max(jnp.minimum(t0, t1)), t_start)
+    t_exit = jnp.min(jnp.maximum(t0, t1))
+    p = origin + direction * t_enter
+    dmax = jnp.asarray(shape, jnp.int32) - 1
+    idx = jnp.clip(jnp.floor(p).astype(jnp.int32), 0, dmax)
+    step = jnp.where(direction > 0, 1, -1).astype(jnp.int32)
+    tiny = jnp.abs(direction) < 1e-12
+    return inv, t_enter, t_exit, idx, step, tiny
+
+
 def refine_pixel(rle, origin, direction, t_start, *, steps: int):
     """Exact first hit of ONE pixel ray near a known depth (short 3-D DDA in the RLE).
 
@@ -693,17 +713,8 @@ def refine_pixel(rle, origin, direction, t_start, *, steps: int):
     Returns:
         ``(found (), t (), colour index ())``; t is in units of ``direction``.
     """
-    dims = jnp.asarray(rle.shape, jnp.float32)
-    inv = _safe_div(1.0, direction, 1e-12)
-    t0 = (0.0 - origin) * inv
-    t1 = (dims - origin) * inv
-    t_enter = jnp.maximum(jnp.max(jnp.minimum(t0, t1)), t_start)
-    t_exit = jnp.min(jnp.maximum(t0, t1))
-    p = origin + direction * t_enter
+    inv, t_enter, t_exit, idx, step, tiny = _dda_entry(rle.shape, origin, direction, t_start)
     dmax = jnp.asarray(rle.shape, jnp.int32) - 1
-    idx = jnp.clip(jnp.floor(p).astype(jnp.int32), 0, dmax)
-    step = jnp.where(direction > 0, 1, -1).astype(jnp.int32)
-    tiny = jnp.abs(direction) < 1e-12
 
     def body(carry, _):
         idx, t, done, found, cidx = carry
@@ -850,17 +861,8 @@ def dda_ray_3d(occupancy, colors, origin, direction, *, max_steps: int, far):
     Returns:
         ``(rgb (3,) float32, t () float32 (+inf on a miss), voxel (3,) int32 (-1 on a miss))``.
     """
-    dims = jnp.asarray(occupancy.shape, jnp.float32)
-    inv = _safe_div(1.0, direction, 1e-12)
-    t0 = (0.0 - origin) * inv
-    t1 = (dims - origin) * inv
-    t_enter = jnp.maximum(jnp.max(jnp.minimum(t0, t1)), 0.0)
-    t_exit = jnp.min(jnp.maximum(t0, t1))
-    p = origin + direction * t_enter
+    inv, t_enter, t_exit, idx, step, tiny = _dda_entry(occupancy.shape, origin, direction, 0.0)
     dmax = jnp.asarray(occupancy.shape, jnp.int32) - 1
-    idx = jnp.clip(jnp.floor(p).astype(jnp.int32), 0, dmax)
-    step = jnp.where(direction > 0, 1, -1).astype(jnp.int32)
-    tiny = jnp.abs(direction) < 1e-12
 
     def body(carry, _):
         idx, t, done, hit = carry
