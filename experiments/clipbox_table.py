@@ -100,7 +100,7 @@ def full_box_ms(pipe, st, repeats=3) -> tuple[float, float]:
     for _ in range(repeats + 1):
         t0 = time.perf_counter()
         b = jax.block_until_ready(
-            pipe.sample_fn(pipe.terrain, box.origin, box.level, size=pipe.size)
+            pipe.sample_fn(pipe.terrain, box.origin, int(box.level), size=pipe.size)
         )
         t1 = time.perf_counter()
         pipe.build_mesh(b, seam=pipe.levels > 1)

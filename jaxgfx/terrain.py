@@ -262,6 +262,110 @@ class CSGTerrain:
         last_union = self.union[safe][jnp.maximum(last, 0)]
         return jnp.where(last >= 0, last_union, p[1] < self.ground)
 
+    def sample_grid(self, origin: jax.Array, level: int, shape: tuple[int, int, int]):
+        """The grid ``origin + i 2^level`` in one pass per bin slot (fast path of 3.4.3).
+
+        With a voxel smaller than a bin, ``s = bin_size / 2^level`` consecutive
+        voxels along each axis share a bin, so the box is evaluated on the
+        bin-aligned super-grid of shape ``(G s)^3`` whose bins' primitives are
+        gathered once (G^3 K records) and broadcast over each bin's ``s^3``
+        voxels -- no per-voxel gathers, which dominate the per-point path on
+        XLA:CPU.  Slots are visited in order (later primitives win) only up to the
+        fullest local bin.  Equal to ``vmap(self)`` on the same points.
+
+        Args:
+            origin: (3,) int32 world coordinate of sample (0, 0, 0).
+            level: static int.
+            shape: static grid shape.
+        Returns:
+            ``shape`` bool.  Only the rows inside the bins' y range are evaluated;
+            where fewer than 2 voxels share a bin, those rows go point by point.
+        """
+        step = 1 << level
+        origin = jnp.asarray(origin, _I32)
+        # Only rows inside the bins' y range need primitives; the rest is ground.
+        n_y = shape[1]
+        lo = self.y_min
+        rows = min(n_y, -(-(self.bins_y * self.bin_size) // step) + 1)
+        start = jnp.clip(-jnp.floor_divide(origin[1] - lo, step), 0, n_y - rows)
+        band_origin = origin.at[1].add(start * step)
+        band_shape = (shape[0], rows, shape[2])
+        if 2 * step > self.bin_size or self.bin_size % step:
+            band = _sample_points(self, band_origin, level, band_shape)
+        else:
+            band = self._sample_shared_bins(band_origin, step, band_shape)
+        if rows == n_y:
+            return band
+        y = origin[1] + jnp.arange(n_y, dtype=_I32) * step
+        ground = jnp.broadcast_to((y < self.ground)[None, :, None], tuple(shape))
+        return jax.lax.dynamic_update_slice(ground, band, (0, start, 0))
+
+    def _sample_shared_bins(self, origin, step: int, shape):
+        """Bin-aligned super-grid evaluation (see :meth:`sample_grid`); needs 2 step <= bin."""
+        bs = self.bin_size
+        s = bs // step
+        world, first, offset = [], [], []
+        for d, n in enumerate(shape):
+            u = origin[d] - (self.y_min if d == 1 else 0)
+            b0 = jnp.floor_divide(u, bs)
+            off = jnp.floor_divide(u - b0 * bs, step)  # first voxel's place in its bin
+            g = (n + 2 * s - 2) // s  # bins spanned by n voxels at any offset
+            world.append((origin[d] + (jnp.arange(g * s, dtype=_I32) - off) * step).reshape(g, s))
+            first.append(b0 + jnp.arange(g, dtype=_I32))
+            offset.append(off)
+        nxz = self.period // bs
+        bx = _floormod(first[0], nxz)[:, None, None]
+        by = first[1][None, :, None]
+        bz = _floormod(first[2], nxz)[None, None, :]
+        b = (jnp.clip(by, 0, self.bins_y - 1) * nxz + bx) * nxz + bz
+        b = jnp.where((by >= 0) & (by < self.bins_y), b, self.bins.shape[0] - 1)
+        ids = self.bins[b]  # (Gx, Gy, Gz, K)
+        valid = ids >= 0
+        safe = jnp.where(valid, ids, 0)
+        # Records per (bin, slot), laid out to broadcast over (Gx, s, Gy, s, Gz, s).
+        rec = jnp.concatenate(
+            [
+                self.centers[safe],
+                self.extents[safe],
+                self.kinds[safe][..., None],
+                jnp.where(valid, self.union[safe], False)[..., None].astype(_I32),
+                valid[..., None].astype(_I32),
+            ],
+            axis=-1,
+        )  # (Gx, Gy, Gz, K, 9)
+        rec = jnp.moveaxis(rec, 3, 0)[:, :, None, :, None, :, None, :]
+        px = _floormod(world[0], self.period)[:, :, None, None, None, None]
+        py = world[1][None, None, :, :, None, None]
+        pz = _floormod(world[2], self.period)[None, None, None, None, :, :]
+        half, period = self.period // 2, self.period
+
+        def wrap(dv):  # exact periodic displacement in [-half, half): |dv| < period
+            return jnp.where(dv >= half, dv - period, jnp.where(dv < -half, dv + period, dv))
+
+        def slot(k, solid):
+            r = jax.lax.dynamic_index_in_dim(rec, k, axis=0, keepdims=False)
+            c0, c1, c2, e0, e1, e2, kind, union, ok = (r[..., i] for i in range(9))
+            dx, dz = wrap(px - c0), wrap(pz - c2)
+            dy = jnp.clip(py - c1, -(1 << 14), 1 << 14)
+            r2 = dx * dx + dz * dz
+            in_sphere = r2 + dy * dy <= e0 * e0
+            in_box = (jnp.abs(dx) <= e0) & (jnp.abs(dy) <= e1) & (jnp.abs(dz) <= e2)
+            in_cyl = (r2 <= e0 * e0) & (jnp.abs(dy) <= e1)
+            shape_in = jnp.where(
+                kind == PRIMITIVE_SPHERE,
+                in_sphere,
+                jnp.where(kind == PRIMITIVE_BOX, in_box, in_cyl),
+            )
+            return jnp.where((ok == 1) & shape_in, union == 1, solid)
+
+        full = tuple(g.shape[0] * s for g in world)
+        grid6 = jnp.broadcast_shapes(px.shape, py.shape, pz.shape)
+        solid = jnp.broadcast_to(py < self.ground, grid6)
+        # Bounded by K; stops after the fullest local bin (boolean output, no gradient).
+        used = jnp.max(jnp.sum(valid, axis=-1))
+        solid = jax.lax.fori_loop(0, used, slot, solid)
+        return jax.lax.dynamic_slice(solid.reshape(full), tuple(offset), tuple(shape))
+
 
 def csg_terrain(
     centers,
@@ -670,8 +774,8 @@ class ClipBox:
     Attributes:
         origin: (3,) int32 world coordinate of voxel (0, 0, 0); a multiple of 2^(level+1).
         voxels: (N, N, N) bool, indexed [x, y, z]; voxel i samples ``origin + i 2^level``.
-        level: () int32, voxel edge is ``2^level`` (a leaf, so one compilation
-            serves every level).
+        level: () int32, voxel edge is ``2^level`` (a leaf, so one compilation of
+            the meshing steps serves every level).
         size: static int, N.
     """
 
@@ -716,21 +820,40 @@ def clipbox_origin(viewer, level: int, size: int) -> np.ndarray:
     return np.floor_divide(v.astype(np.int64) - (size // 2) * (1 << level), step) * step
 
 
-def sample_terrain(terrain, origin: jax.Array, *, level: int, shape: tuple[int, int, int]):
-    """Samples ``terrain`` at ``origin + i 2^level`` for i in ``shape`` (3.4.3).
-
-    Args:
-        terrain: a terrain pytree (validate with :func:`check_terrain` first).
-        origin: (3,) int32 world coordinate of sample (0, 0, 0).
-        level: () int32 voxel level (may be traced).
-        shape: static grid shape.
-    Returns:
-        ``shape`` bool.
-    """
+def _sample_points(terrain, origin, level, shape):
     idx = [jnp.arange(n, dtype=_I32) << level for n in shape]
     gx, gy, gz = jnp.meshgrid(*idx, indexing="ij")
     pts = jnp.stack([gx, gy, gz], axis=-1).reshape(-1, 3) + jnp.asarray(origin, _I32)
     return jax.vmap(terrain)(pts).reshape(shape)
+
+
+def sample_terrain(terrain, origin: jax.Array, *, level, shape: tuple[int, int, int]):
+    """Samples ``terrain`` at ``origin + i 2^level`` for i in ``shape`` (3.4.3).
+
+    Terrains with a ``sample_grid(origin, level, shape)`` method (the binned CSG)
+    take their grid fast path when ``level`` is a Python int; combinators recurse
+    into their operands; everything else is ``vmap`` over the points.
+
+    Args:
+        terrain: a terrain pytree (validate with :func:`check_terrain` first).
+        origin: (3,) int32 world coordinate of sample (0, 0, 0).
+        level: voxel level: a static int (fast paths) or a () int32 (may be traced).
+        shape: static grid shape.
+    Returns:
+        ``shape`` bool.
+    """
+    if isinstance(terrain, (Union, Intersection, Difference)):
+        a = sample_terrain(terrain.a, origin, level=level, shape=shape)
+        b = sample_terrain(terrain.b, origin, level=level, shape=shape)
+        if isinstance(terrain, Union):
+            return a | b
+        return a & b if isinstance(terrain, Intersection) else a & ~b
+    grid = getattr(terrain, "sample_grid", None)
+    if grid is not None and isinstance(level, (int, np.integer)) and not isinstance(level, bool):
+        out = grid(origin, int(level), tuple(shape))
+        if out is not None:
+            return out
+    return _sample_points(terrain, origin, level, shape)
 
 
 def sample_clipbox(terrain, origin: jax.Array, level: jax.Array, *, size: int) -> ClipBox:
@@ -739,11 +862,13 @@ def sample_clipbox(terrain, origin: jax.Array, level: jax.Array, *, size: int) -
     Args:
         terrain: terrain pytree.
         origin: (3,) int32, a multiple of 2^(level+1) (see :func:`clipbox_origin`).
-        level: () int32 level.
+        level: the level: a Python int (static under ``jit``; lets the binned CSG
+            share bins between voxels, see :meth:`CSGTerrain.sample_grid`) or a
+            () int32 (may be traced).
         size: static N.
     """
-    level = jnp.asarray(level, _I32)
     vox = sample_terrain(terrain, origin, level=level, shape=(size, size, size))
+    level = jnp.asarray(level, _I32)
     return ClipBox(origin=jnp.asarray(origin, _I32), voxels=vox, level=level, size=size)
 
 
@@ -759,7 +884,14 @@ def slab_thickness(delta) -> tuple[int, int, int]:
     return tuple(out)
 
 
-def shift_clipbox(terrain, box: ClipBox, new_origin: jax.Array, *, slabs: tuple[int, int, int]):
+def shift_clipbox(
+    terrain,
+    box: ClipBox,
+    new_origin: jax.Array,
+    *,
+    slabs: tuple[int, int, int],
+    level: int | None = None,
+):
     """Differential update (3.4.6, Fig. 3.11): reuse the overlap, sample only new slabs.
 
     Args:
@@ -768,6 +900,8 @@ def shift_clipbox(terrain, box: ClipBox, new_origin: jax.Array, *, slabs: tuple[
         new_origin: (3,) int32, a multiple of 2^(level+1).
         slabs: static per-axis slab thickness >= |shift| in voxels (see
             :func:`slab_thickness`); only ``sum_d slabs_d N^2`` points are sampled.
+        level: optional static copy of ``box.level`` for the sampling fast paths
+            (see :func:`sample_clipbox`); it must equal ``box.level``.
     Returns:
         The moved :class:`ClipBox`; equals :func:`sample_clipbox` at ``new_origin``.
     """
@@ -775,23 +909,22 @@ def shift_clipbox(terrain, box: ClipBox, new_origin: jax.Array, *, slabs: tuple[
     new_origin = jnp.asarray(new_origin, _I32)
     delta = jnp.right_shift(new_origin - box.origin, lvl)  # voxels
     vox = jnp.roll(box.voxels, -delta, axis=(0, 1, 2))
-    idx = jnp.arange(n, dtype=_I32)
     for axis, t in enumerate(slabs):
         if t == 0:
             continue
-        d = delta[axis]
-        start = jnp.where(d > 0, n - t, 0)
+        # The slab is t >= |delta| voxels thick: it covers the exposed voxels and
+        # re-samples a few reused ones, which the terrain gives back unchanged, so
+        # it is written over the box as a whole (in place, no mask over N^3).
+        start = jnp.where(delta[axis] > 0, n - t, 0)
         s_origin = new_origin.at[axis].add(start << lvl)
         shape = [n, n, n]
         shape[axis] = t
-        slab = sample_terrain(terrain, s_origin, level=lvl, shape=tuple(shape))
-        full = jax.lax.dynamic_update_slice(
-            jnp.zeros_like(vox), slab, tuple(jnp.where(a == axis, start, 0) for a in range(3))
+        slab = sample_terrain(
+            terrain, s_origin, level=lvl if level is None else level, shape=tuple(shape)
         )
-        exposed = jnp.where(d > 0, idx >= n - d, idx < -d)
-        bshape = [1, 1, 1]
-        bshape[axis] = n
-        vox = jnp.where(exposed.reshape(bshape), full, vox)
+        vox = jax.lax.dynamic_update_slice(
+            vox, slab, tuple(jnp.where(a == axis, start, 0) for a in range(3))
+        )
     return ClipBox(origin=new_origin, voxels=vox, level=lvl, size=n)
 
 
@@ -836,12 +969,21 @@ def pattern_filter(voxels: jax.Array) -> jax.Array:
 # --------------------------------------------------------------------------------------
 
 
+# Bit sets in a "planar" layout: flat index i is bit i // W of word i % W (W words).
+# Packing is then 32 contiguous, vectorised ORs instead of a reduction over strided
+# rows (5-10x faster on XLA:CPU).  Enumeration order (select / rank) is word-major,
+# so ids are deterministic but not in flat-index order -- nothing relies on that.
+
+
 def _pack_bits(mask: jax.Array) -> jax.Array:
-    """(M,) bool -> (ceil(M / 32),) uint32 words, bit k of word w = mask[32 w + k]."""
+    """(M,) bool -> (W,) uint32 words, W = ceil(M / 32), bit k of word w = mask[k W + w]."""
     m = mask.shape[0]
-    pad = (-m) % 32
-    bits = jnp.pad(mask, (0, pad)).reshape(-1, 32).astype(jnp.uint32)
-    return jnp.sum(bits << jnp.arange(32, dtype=jnp.uint32), axis=1, dtype=jnp.uint32)
+    w = -(-m // 32)
+    planes = jnp.pad(mask, (0, 32 * w - m)).reshape(32, w)
+    words = jnp.where(planes[0], jnp.uint32(1), jnp.uint32(0))
+    for k in range(1, 32):  # where, not convert: XLA would materialise 32 converted planes
+        words = words | jnp.where(planes[k], jnp.uint32(1 << k), jnp.uint32(0))
+    return words
 
 
 def _rank_words(words: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -854,8 +996,11 @@ def _rank_words(words: jax.Array) -> tuple[jax.Array, jax.Array]:
     return cnt, jnp.cumsum(cnt) - cnt
 
 
-def _select(words, cnt, start, q: jax.Array) -> jax.Array:
-    """Flat index of the ``q``-th set bit (q sorted ascending); garbage past the total."""
+def _select(words, cnt, start, q: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(word, bit) of the ``q``-th set bit (q ascending); garbage past the total.
+
+    The flat index is ``bit * W + word`` for a single packed mask.
+    """
     w = jnp.searchsorted(start + cnt, q, side="right").astype(_I32)
     w = jnp.minimum(w, words.shape[0] - 1)
     r = q - start[w]
@@ -867,20 +1012,20 @@ def _select(words, cnt, start, q: jax.Array) -> jax.Array:
         up = r >= c
         pos = pos + jnp.where(up, width, 0)
         r = r - jnp.where(up, c, 0)
-    return w * 32 + pos
+    return w, pos
 
 
 def _rank(words, start, idx: jax.Array) -> jax.Array:
-    """Number of set bits before flat index ``idx`` (the id of a set bit)."""
-    w = jnp.right_shift(idx, 5)
-    b = jnp.bitwise_and(idx, 31).astype(jnp.uint32)
+    """Number of set bits enumerated before flat index ``idx`` (the id of a set bit)."""
+    w = idx % words.shape[0]
+    b = (idx // words.shape[0]).astype(jnp.uint32)
     below = words[w] & ((jnp.uint32(1) << b) - jnp.uint32(1))
     return start[w] + jax.lax.population_count(below).astype(_I32)
 
 
 def _bit(words, idx: jax.Array) -> jax.Array:
-    b = jnp.bitwise_and(idx, 31).astype(jnp.uint32)
-    return (jnp.right_shift(words[jnp.right_shift(idx, 5)], b) & jnp.uint32(1)) == 1
+    b = (idx // words.shape[0]).astype(jnp.uint32)
+    return (jnp.right_shift(words[idx % words.shape[0]], b) & jnp.uint32(1)) == 1
 
 
 @jax.tree_util.register_dataclass
@@ -949,15 +1094,23 @@ def _seam_occupancy(voxels: jax.Array) -> jax.Array:
 
     The outer box samples the terrain at the even inner indices, so copying those
     samples onto the ring makes the inner surface cross the box boundary exactly
-    where the outer surface does.
+    where the outer surface does.  The six ring slabs are written in place (each
+    N^2 work) rather than blending a full up-sampled copy of the box.
     """
     n = voxels.shape[0]
-    coarse = voxels[::2, ::2, ::2]
-    up = jnp.repeat(jnp.repeat(jnp.repeat(coarse, 2, 0), 2, 1), 2, 2)
-    i = jnp.arange(n)
-    r = (i < 2) | (i >= n - 2)
-    ring = r[:, None, None] | r[None, :, None] | r[None, None, :]
-    return jnp.where(ring, up, voxels)
+
+    def up(c):  # (n/2, n/2) -> (n, n)
+        return jnp.repeat(jnp.repeat(c, 2, axis=0), 2, axis=1)
+
+    out = voxels
+    for axis in range(3):
+        for lo in (0, n - 2):  # even, so these planes are outer lattice samples
+            plane = jax.lax.index_in_dim(voxels, lo, axis=axis, keepdims=False)[::2, ::2]
+            slab = jnp.expand_dims(up(plane), axis).repeat(2, axis=axis)
+            start = [0, 0, 0]
+            start[axis] = lo
+            out = jax.lax.dynamic_update_slice(out, slab, tuple(start))
+    return out
 
 
 def _snap(c: jax.Array, n: int) -> jax.Array:
@@ -988,31 +1141,32 @@ def voxels_to_mesh(
     n = box.size
     vmax = max_quads + 16 * n if max_vertices is None else max_vertices
     occ = _seam_occupancy(box.voxels) if seam else box.voxels
-    masks, lows = [], []
+    # Per axis d, a (N, N, N-1)-style face mask packed on its own, so the masks are
+    # never concatenated; word w of axis d is global word d W_d + w.
+    words = []
     for d in range(3):
         lo = jax.lax.slice_in_dim(occ, 0, n - 1, axis=d)
         hi = jax.lax.slice_in_dim(occ, 1, n, axis=d)
-        masks.append((lo != hi).reshape(-1))
-        lows.append(lo.reshape(-1))
-    mask = jnp.concatenate(masks)
-    solid_lo = jnp.concatenate(lows)
-    words = _pack_bits(mask)
+        words.append(_pack_bits((lo != hi).reshape(-1)))
+    w_d = words[0].shape[0]
+    words = jnp.concatenate(words)
     cnt, start = _rank_words(words)
     num_quads = jnp.sum(cnt)
     q = jnp.arange(max_quads, dtype=_I32)
     qvalid = q < num_quads
-    flat = jnp.where(qvalid, _select(words, cnt, start, q), 0)
-    per = n * n * (n - 1)
-    axis = flat // per
-    r = flat % per
-    lo_solid = solid_lo[flat]
+    w, pos = _select(words, cnt, start, q)
+    w = jnp.where(qvalid, w, 0)
+    pos = jnp.where(qvalid, pos, 0)
+    axis = w // w_d
+    r = pos * w_d + w % w_d  # flat index into axis d's mask
     base = jnp.zeros((max_quads, 3), _I32)
     for d in range(3):
         shape = [n, n, n]
         shape[d] = n - 1
         ijk = jnp.stack(jnp.unravel_index(r, tuple(shape)), axis=-1).astype(_I32)
-        ijk = ijk.at[:, d].add(1)  # the face lies on lattice plane i_d + 1
         base = jnp.where((axis == d)[:, None], ijk, base)
+    lo_solid = occ[base[:, 0], base[:, 1], base[:, 2]]  # the voxel below the face
+    base = base + jnp.eye(3, dtype=_I32)[axis]  # the face lies on lattice plane i_d + 1
     eye = jnp.eye(3, dtype=_I32)
     e_u = eye[(axis + 1) % 3]
     e_v = eye[(axis + 2) % 3]
@@ -1027,14 +1181,6 @@ def voxels_to_mesh(
     def flat_of(c):
         return (c[..., 0] * m1 + c[..., 1]) * m1 + c[..., 2]
 
-    # Unit lattice edges of the quads (before snapping): the vertex-to-vertex links.
-    e0 = corners
-    e1 = jnp.roll(corners, -1, axis=1)
-    e_axis = jnp.argmax(jnp.abs(e1 - e0), axis=-1)
-    e_lo = jnp.minimum(e0, e1)
-    e_idx = jnp.where(qvalid[:, None], e_axis * m1**3 + flat_of(e_lo), big)
-    edges = jnp.zeros((3 * m1**3,), bool).at[e_idx.reshape(-1)].set(True, mode="drop")
-    edge_words = _pack_bits(edges)
     snapped = _snap(corners, n) if seam else corners
     cflat = flat_of(snapped)  # (Q, 4)
     cflat_used = jnp.where(qvalid[:, None], cflat, big)
@@ -1044,7 +1190,8 @@ def voxels_to_mesh(
     num_vertices = jnp.sum(vcnt)
     vq = jnp.arange(vmax, dtype=_I32)
     vvalid = vq < num_vertices
-    vflat = jnp.where(vvalid, _select(vwords, vcnt, vstart, vq), 0)
+    vw, vpos = _select(vwords, vcnt, vstart, vq)
+    vflat = jnp.where(vvalid, vpos * vwords.shape[0] + vw, 0)
     lattice = jnp.stack(jnp.unravel_index(vflat, (m1, m1, m1)), axis=-1).astype(_I32)
     lattice = jnp.where(vvalid[:, None], lattice, 0)
     ids = _rank(vwords, vstart, cflat)  # (Q, 4)
@@ -1053,25 +1200,34 @@ def voxels_to_mesh(
     tvalid &= (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
     tvalid &= jnp.all(tri < vmax, axis=-1)
     tri = jnp.where(tvalid[:, None], tri, 0)
-    # 6 lattice neighbours joined by an edge; snapped neighbours resolve to their target.
-    nbrs = []
-    for d in range(3):
-        for sign in (-1, 1):
-            other = lattice + sign * eye[d]
-            e_lo = jnp.minimum(lattice, other)
-            inside = jnp.all((other >= 0) & (other <= n), axis=-1)
-            has = inside & _bit(edge_words, d * m1**3 + flat_of(jnp.clip(e_lo, 0, n)))
-            tgt = _snap(other, n) if seam else other
-            tflat = flat_of(jnp.clip(tgt, 0, n))
-            nid = _rank(vwords, vstart, tflat)
-            ok = has & vvalid & (nid < vmax) & (nid != vq) & _bit(vwords, tflat)
-            nbrs.append(jnp.where(ok, nid, -1))
+    # Vertex-to-vertex links (Fig. 3.4) straight from the quads' unit lattice edges:
+    # corner k links to corner k + 1 and back.  A corner moved by the seam snap has
+    # no links of its own (its vertex is the snap target's), and a link to a moved
+    # corner goes to its target.  Every writer of a (vertex, direction) slot writes
+    # the same id, so the scatter is deterministic.
+    step = jnp.roll(corners, -1, axis=1) - corners  # (Q, 4, 3), a unit +-e_d
+    d = jnp.argmax(jnp.abs(step), axis=-1)
+    up = jnp.take_along_axis(step, d[..., None], axis=-1)[..., 0] > 0
+    own = jnp.all(snapped == corners, axis=-1) & qvalid[:, None]
+    ids_next = jnp.roll(ids, -1, axis=1)
+    own_next = jnp.roll(own, -1, axis=1)
+    link = (ids != ids_next) & (ids < vmax) & (ids_next < vmax)
+    src = jnp.concatenate(
+        [jnp.where(own & link, ids, vmax), jnp.where(own_next & link, ids_next, vmax)]
+    )
+    slot = jnp.concatenate([2 * d + up, 2 * d + ~up])
+    val = jnp.concatenate([ids_next, ids])
+    nbrs = (
+        jnp.full((vmax, 6), -1, _I32)
+        .at[src.reshape(-1), slot.reshape(-1)]
+        .set(val.reshape(-1), mode="drop")
+    )
     scale = jnp.left_shift(1, box.level).astype(jnp.float32)
     return ClipBoxMesh(
         vertices=lattice.astype(jnp.float32) * scale,
         normals=jnp.zeros((vmax, 3), jnp.float32),
         lattice=lattice,
-        neighbors=jnp.stack(nbrs, axis=-1),
+        neighbors=nbrs,
         faces=tri,
         face_valid=tvalid,
         face_center2=jnp.repeat(center2, 2, axis=0),
@@ -1098,15 +1254,22 @@ def smooth_mesh(mesh: ClipBoxMesh, *, iterations: int = 4, weight: float = 0.5) 
         weight: step in [0, 1].
     """
     nb = mesh.neighbors
+    v = nb.shape[0]
     has = nb >= 0
-    safe = jnp.where(has, nb, 0)
+    # Missing links read an appended zero row: six plain gathers and adds, no
+    # masked (V, 6, 3) reduction (8x faster on XLA:CPU).
+    idx = jnp.where(has, nb, v)
     deg = jnp.sum(has, axis=-1, keepdims=True).astype(jnp.float32)
     ok = deg > 0
-    inv = jnp.where(ok, 1.0 / jnp.where(ok, deg, 1.0), 0.0)
+    step_w = weight * jnp.where(ok, 1.0 / jnp.where(ok, deg, 1.0), 0.0)
 
     def step(p, _):
-        avg = jnp.sum(jnp.where(has[..., None], p[safe], 0.0), axis=1) * inv
-        return jnp.where(ok, p + weight * (avg - p), p), None
+        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
+        total = pe[idx[:, 0]]
+        for k in range(1, 6):
+            total = total + pe[idx[:, k]]
+        # p + weight (mean - p); a vertex without links keeps p (step_w = 0).
+        return p + step_w * (total - deg * p), None
 
     p, _ = jax.lax.scan(step, mesh.vertices, None, length=iterations)
     return dataclasses.replace(mesh, vertices=p)
@@ -1298,15 +1461,17 @@ class ClipBoxPipeline:
 
     It holds jitted versions of the pure steps (``sample_fn``, ``shift_fn``,
     ``extract_fn``, ``smooth_fn``, ``normals_fn``, ``weld_fn``; this object plays
-    the caller that jits); one compilation serves every level because the level
-    is a traced leaf.
+    the caller that jits).  Sampling is compiled per level (the level is static
+    there so the binned CSG can share bins between voxels); the meshing steps
+    are compiled once for every level because the box's level is a traced leaf.
 
     Args:
         terrain: a terrain (validated with :func:`check_terrain`).
         size: N, voxels per box edge, a multiple of 8.
         levels: L >= 1 nested boxes.
-        max_quads: quad capacity per box (default ``2 N^2``); doubled and rebuilt
-            whenever a box has more (never truncated).
+        max_quads: initial quad capacity per box (default ``2 N^2``); a level's
+            capacity (``capacity[level]``) grows to the next power of two >= twice
+            the old one and the box is rebuilt whenever it has more (never truncated).
         smoothing: averaging iterations per box (3.4.7).
         smoothing_weight: averaging step.
         move_threshold: a box moves once the viewer is this many of its voxels
@@ -1351,6 +1516,7 @@ class ClipBoxPipeline:
         self.max_quads = int(max_quads) if max_quads is not None else 2 * self.size**2
         if self.max_quads < 1:
             raise ValueError(f"max_quads must be >= 1, got {max_quads}")
+        self.capacity: dict[int, int] = {}  # grown quad capacity per level
         if (
             isinstance(smoothing, bool)
             or not isinstance(smoothing, (int, np.integer))
@@ -1366,8 +1532,8 @@ class ClipBoxPipeline:
             raise ValueError(f"move_threshold must be in [1, N/2 - 6], got {t}")
         self.move_threshold = t
         self.pattern = bool(pattern)
-        self.sample_fn = jax.jit(sample_clipbox, static_argnames=("size",))
-        self.shift_fn = jax.jit(shift_clipbox, static_argnames=("slabs",))
+        self.sample_fn = jax.jit(sample_clipbox, static_argnames=("size", "level"))
+        self.shift_fn = jax.jit(shift_clipbox, static_argnames=("slabs", "level"))
         self.filter_fn = jax.jit(lambda b: dataclasses.replace(b, voxels=pattern_filter(b.voxels)))
         self.extract_fn = jax.jit(voxels_to_mesh, static_argnames=("max_quads", "seam"))
         self.smooth_fn = jax.jit(smooth_mesh, static_argnames=("iterations",))
@@ -1399,11 +1565,15 @@ class ClipBoxPipeline:
         t0 = time.perf_counter()
         if self.pattern:
             box = self.filter_fn(box)
+        # Capacity per level (coarse levels carry more quads); grown to a power of two
+        # so the levels share a few compiled shapes.
+        lvl = int(box.level)
         while True:
-            mesh = self.extract_fn(box, max_quads=self.max_quads, seam=seam)
+            cap = self.capacity.get(lvl, self.max_quads)
+            mesh = self.extract_fn(box, max_quads=cap, seam=seam)
             if not bool(mesh.overflow):
                 break
-            self.max_quads = max(2 * self.max_quads, int(mesh.num_quads) + 1)
+            self.capacity[lvl] = 1 << int(max(2 * cap, int(mesh.num_quads) + 1) - 1).bit_length()
         t1 = time.perf_counter()
         mesh = _block(self.smooth_fn(mesh, iterations=self.smoothing, weight=self.smoothing_weight))
         t2 = time.perf_counter()
@@ -1429,9 +1599,7 @@ class ClipBoxPipeline:
         v = self._check_viewer(viewer)
         origins = nested_origins(v, levels=self.levels, size=self.size)
         boxes = [
-            self.sample_fn(
-                self.terrain, jnp.asarray(o, _I32), jnp.asarray(lvl, _I32), size=self.size
-            )
+            self.sample_fn(self.terrain, jnp.asarray(o, _I32), lvl, size=self.size)
             for lvl, o in enumerate(origins)
         ]
         raw = [self.build_mesh(b, seam=lvl < self.levels - 1) for lvl, b in enumerate(boxes)]
@@ -1476,13 +1644,13 @@ class ClipBoxPipeline:
             delta = (want - old) >> lvl
             if np.max(np.abs(delta)) <= n // 4:
                 slabs = slab_thickness(delta)
-                box = self.shift_fn(self.terrain, boxes[lvl], jnp.asarray(want, _I32), slabs=slabs)
+                box = self.shift_fn(
+                    self.terrain, boxes[lvl], jnp.asarray(want, _I32), slabs=slabs, level=lvl
+                )
                 st["reused"] = reused_fraction(old, want, lvl, n)
                 st["sampled"] = sum(slabs) / n
             else:
-                box = self.sample_fn(
-                    self.terrain, jnp.asarray(want, _I32), jnp.asarray(lvl, _I32), size=n
-                )
+                box = self.sample_fn(self.terrain, jnp.asarray(want, _I32), lvl, size=n)
                 st["reused"], st["sampled"] = 0.0, 1.0
             boxes[lvl] = _block(box)
             st["generation_ms"] = 1e3 * (time.perf_counter() - t0)

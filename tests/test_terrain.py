@@ -145,6 +145,27 @@ def test_csg_matches_bruteforce(small_csg, origin):
     assert small_csg.bins.shape[1] < small_csg.centers.shape[0] // 4
 
 
+grid_jit = jax.jit(T.sample_terrain, static_argnames=("level", "shape"))
+
+
+@pytest.mark.parametrize("level", [0, 1, 2, 3])
+def test_csg_grid_path_matches_bruteforce(small_csg, level):
+    # A static level takes CSGTerrain.sample_grid: shared bins (2^level < bin_size) or
+    # the y band point by point; unaligned origins, the period and the y range crossed.
+    step = 1 << level
+    for origin in [(-37, -29, 13), (1_000_000_003, -21 + step, -999_999_995)]:
+        shape = (24, 40 // step + 3, 9)
+        got = np.asarray(
+            grid_jit(small_csg, jnp.asarray(origin, jnp.int32), level=level, shape=shape)
+        )
+        want = csg_reference(small_csg, grid_points(origin, shape, step))
+        np.testing.assert_array_equal(got, want)
+    both = T.Difference(T.Union(small_csg, T.SawTerrain(modulus=9, threshold=2)), small_csg)
+    o = jnp.asarray((5, -10, 7), jnp.int32)
+    fast = grid_jit(both, o, level=level, shape=(8, 8, 8))
+    np.testing.assert_array_equal(fast, sample(both, o, (8, 8, 8), level=level))
+
+
 def test_csg_same_key_same_terrain(small_csg):
     again = T.random_csg_terrain(
         key=jax.random.PRNGKey(3),
