@@ -1205,22 +1205,29 @@ def voxels_to_mesh(
     # no links of its own (its vertex is the snap target's), and a link to a moved
     # corner goes to its target.  Every writer of a (vertex, direction) slot writes
     # the same id, so the scatter is deterministic.
-    step = jnp.roll(corners, -1, axis=1) - corners  # (Q, 4, 3), a unit +-e_d
-    d = jnp.argmax(jnp.abs(step), axis=-1)
-    up = jnp.take_along_axis(step, d[..., None], axis=-1)[..., 0] > 0
+    # The quad's edges k -> k + 1 run along +a, +b, -a, -b, where (a, b) is
+    # (e_u, e_v) when the solid is below and (e_v, e_u) otherwise (see c1, c3).
+    d_a = jnp.where(lo_solid, (axis + 1) % 3, (axis + 2) % 3)
+    d_b = 3 - axis - d_a
+    d = jnp.stack([d_a, d_b, d_a, d_b], axis=1)  # (Q, 4)
+    up = jnp.asarray([1, 1, 0, 0], _I32)
     own = jnp.all(snapped == corners, axis=-1) & qvalid[:, None]
     ids_next = jnp.roll(ids, -1, axis=1)
     own_next = jnp.roll(own, -1, axis=1)
     link = (ids != ids_next) & (ids < vmax) & (ids_next < vmax)
+    # Flat (vertex, direction) slots; vertex id vmax lands past the end and is dropped.
     src = jnp.concatenate(
-        [jnp.where(own & link, ids, vmax), jnp.where(own_next & link, ids_next, vmax)]
+        [
+            jnp.where(own & link, ids, vmax) * 6 + 2 * d + up,
+            jnp.where(own_next & link, ids_next, vmax) * 6 + 2 * d + 1 - up,
+        ]
     )
-    slot = jnp.concatenate([2 * d + up, 2 * d + ~up])
     val = jnp.concatenate([ids_next, ids])
     nbrs = (
-        jnp.full((vmax, 6), -1, _I32)
-        .at[src.reshape(-1), slot.reshape(-1)]
+        jnp.full((vmax * 6,), -1, _I32)
+        .at[src.reshape(-1)]
         .set(val.reshape(-1), mode="drop")
+        .reshape(vmax, 6)
     )
     scale = jnp.left_shift(1, box.level).astype(jnp.float32)
     return ClipBoxMesh(
