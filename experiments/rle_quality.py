@@ -7,6 +7,10 @@ normals and ambient occlusion (Fig. 4.19); writes ``quality.png`` (a labelled
 grid is left to the reader: columns no AA / 2x1 / 2x2, rows raw / smoothed /
 shaded) and a timing table.
 
+Note on 2x1 AA: the thesis renders the same view with pixels half as wide;
+our square-pixel camera at ``2W x H`` sees a twice wider field of view, so the
+2x1 column shows that wider view squeezed (see :func:`jaxgfx.post.antialias`).
+
 Usage::
 
     python experiments/rle_quality.py --quick --out out/rle_quality

@@ -100,6 +100,7 @@ from jaxgfx.raycast import refine_pixel as refine_pixel
 from jaxgfx.raycast import render_rle as render_rle
 from jaxgfx.raycast import screen_segments as screen_segments
 from jaxgfx.raycast import traverse_plane as traverse_plane
+from jaxgfx.raycast import traverse_planes as traverse_planes
 from jaxgfx.raycast import vanishing_point as vanishing_point
 from jaxgfx.raycast import warp_ray_buffer as warp_ray_buffer
 from jaxgfx.scene import CharacterPass as CharacterPass

@@ -111,13 +111,14 @@ def cmd_render_voxels(args) -> int:
         out, _ = fn(jnp.asarray(occ), jnp.asarray(col), cam)
         stats = {}
     else:
-        fn = jax.jit(RC.render_rle, static_argnames=("refine_steps", "oversample"))
+        fn = jax.jit(RC.render_rle, static_argnames=("refine_steps", "oversample", "neighbors"))
         out = fn(
             V.as_jax(rle),
             cam,
             lod_distance=args.lod if args.lod > 0 else jnp.inf,
-            refine_steps=args.refine,
-            oversample=args.oversample,
+            refine_steps=0 if args.thesis else args.refine,
+            oversample=1.0 if args.thesis else args.oversample,
+            neighbors=0 if args.thesis else 1,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
     jax.block_until_ready(out.depth)
@@ -197,11 +198,16 @@ def register(subparsers) -> None:
     r.add_argument("--far", type=float, default=1e5, help="maximal view distance (voxels)")
     r.add_argument("--levels", type=_positive_int, default=1, help="mip levels (LOD)")
     r.add_argument("--lod", type=float, default=0.0,
-                   help="horizontal distance per LOD band (0: level 0 only)")  # fmt: skip
-    r.add_argument("--refine", type=int, default=0,
-                   help="per-pixel exact re-walk steps (0: thesis method only)")  # fmt: skip
-    r.add_argument("--oversample", type=float, default=1.0,
-                   help="planes per border pixel (1 = thesis, Eq. 4.4)")  # fmt: skip
+                   help="distance where mip level 1 starts, level l at lod * 2^(l-1) "
+                   "(0: level 0 only)")  # fmt: skip
+    r.add_argument("--refine", type=int, default=16,
+                   help="exact re-walk steps for pixels whose ray met no sampled voxel "
+                   "(0: off)")  # fmt: skip
+    r.add_argument("--oversample", type=float, default=2.0,
+                   help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
+    r.add_argument("--thesis", action="store_true",
+                   help="the thesis method alone: 1 plane per border pixel, nearest "
+                   "texel, no re-walk")  # fmt: skip
     r.add_argument("--out", required=True, help="output PNG")
     r.add_argument("--depth", default=None, help="optional depth .npy")
     r.add_argument("--reference", action="store_true",

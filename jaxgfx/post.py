@@ -41,6 +41,15 @@ def _sample(img, ys, xs):
 def antialias(color, depth, factor: tuple[int, int] = (2, 1)):
     """Down-samples a super-sampled frame (4.5.6.2).
 
+    The thesis's 2x1 AA renders the *same view* with twice the horizontal
+    samples (pixels half as wide as tall) and averages horizontal pairs.
+    :class:`jaxgfx.camera.Camera` has square pixels, so a ``2W x H`` camera
+    with the same ``fov_y`` sees a twice wider field of view: its 2x1
+    average is a horizontally squeezed wider image.  Such a frame has the
+    thesis's sample count and row layout (fine for timing, as in
+    ``experiments/rle_bench.py``) but not its picture; for images use 2x2 AA
+    (``2W x 2H``, the same view) until the camera gains a pixel aspect ratio.
+
     Args:
         color: (H * fy, W * fx, C).
         depth: (H * fy, W * fx).
