@@ -48,6 +48,8 @@ def markdown_table(rows: list[dict], columns: list[str]) -> str:
     """Rows of dicts as a Markdown table (floats with 4 significant digits)."""
 
     def fmt(v):
+        if v is None:
+            return ""
         return f"{v:.4g}" if isinstance(v, float) else str(v)
 
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]

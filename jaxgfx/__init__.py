@@ -85,6 +85,7 @@ from jaxgfx.raster import triangle_setup as triangle_setup
 from jaxgfx.raster import validate_mesh as validate_mesh
 from jaxgfx.raster import vertex_normals as vertex_normals
 from jaxgfx.raster import visibility as visibility
+from jaxgfx.raycast import RENDER_RLE_STATIC as RENDER_RLE_STATIC
 from jaxgfx.raycast import PlaneParams as PlaneParams
 from jaxgfx.raycast import RenderOutput as RenderOutput
 from jaxgfx.raycast import Segments as Segments

@@ -111,7 +111,7 @@ def cmd_render_voxels(args) -> int:
         out, _ = fn(jnp.asarray(occ), jnp.asarray(col), cam)
         stats = {}
     else:
-        fn = jax.jit(RC.render_rle, static_argnames=("refine_steps", "oversample", "neighbors"))
+        fn = jax.jit(RC.render_rle, static_argnames=RC.RENDER_RLE_STATIC)
         out = fn(
             V.as_jax(rle),
             cam,

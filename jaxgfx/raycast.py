@@ -43,6 +43,7 @@ __all__ = [
     "ray_buffer_coords",
     "warp_ray_buffer",
     "render_rle",
+    "RENDER_RLE_STATIC",
     "refine_pixel",
     "refine_hits",
     "default_num_planes",
@@ -1025,6 +1026,19 @@ def default_max_steps(rle) -> int:
     return int(rle.shape[0] + rle.shape[2] + 2)
 
 
+RENDER_RLE_STATIC = (
+    "num_planes",
+    "max_steps",
+    "oversample",
+    "buffer_size",
+    "refine_steps",
+    "neighbors",
+    "refine_budget",
+    "elements_per_step",
+)
+"""The static arguments of :func:`render_rle`: ``jax.jit(render_rle, static_argnames=...)``."""
+
+
 def render_rle(
     rle,
     cam: Camera,
@@ -1041,10 +1055,8 @@ def render_rle(
 ) -> RenderOutput:
     """Renders an :class:`~jaxgfx.voxels.RLEVolume` with the per-plane ray caster (4.5).
 
-    jit with ``static_argnames=("num_planes", "max_steps", "oversample",
-    "buffer_size", "refine_steps", "neighbors", "refine_budget",
-    "elements_per_step")``; vmap over a batched camera (same resolution)
-    renders many views.
+    jit with ``static_argnames=RENDER_RLE_STATIC``; vmap over a batched
+    camera (same resolution) renders many views.
 
     The defaults are the settings the acceptance test (agreement with the
     per-pixel 3-D DDA of :func:`reference_render`: depth within one voxel on

@@ -52,19 +52,7 @@ CAMERAS = [
     ("inside", camera_from_degrees([3, 12, 20], 135, -25, 0, 70, W, H)),
 ]
 
-render = jax.jit(
-    RC.render_rle,
-    static_argnames=(
-        "num_planes",
-        "max_steps",
-        "oversample",
-        "buffer_size",
-        "refine_steps",
-        "neighbors",
-        "refine_budget",
-        "elements_per_step",
-    ),
-)
+render = jax.jit(RC.render_rle, static_argnames=RC.RENDER_RLE_STATIC)
 reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 
 
