@@ -122,16 +122,20 @@ def csg_reference(csg: T.CSGTerrain, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-@pytest.fixture(scope="module")
-def small_csg():
+def small_csg_terrain(seed: int) -> T.CSGTerrain:
     return T.random_csg_terrain(
-        key=jax.random.PRNGKey(3),
+        key=jax.random.PRNGKey(seed),
         count=120,
         period=64,
         y_range=(-24, 24),
         radius=(2, 7),
         bin_size=8,
     )
+
+
+@pytest.fixture(scope="module")
+def small_csg():
+    return small_csg_terrain(3)
 
 
 @pytest.mark.parametrize("origin", [(-40, -30, -40), (1_000_000_000, -20, -1_000_000_000)])
@@ -167,22 +171,8 @@ def test_csg_grid_path_matches_bruteforce(small_csg, level):
 
 
 def test_csg_same_key_same_terrain(small_csg):
-    again = T.random_csg_terrain(
-        key=jax.random.PRNGKey(3),
-        count=120,
-        period=64,
-        y_range=(-24, 24),
-        radius=(2, 7),
-        bin_size=8,
-    )
-    other = T.random_csg_terrain(
-        key=jax.random.PRNGKey(4),
-        count=120,
-        period=64,
-        y_range=(-24, 24),
-        radius=(2, 7),
-        bin_size=8,
-    )
+    again = small_csg_terrain(3)
+    other = small_csg_terrain(4)
     for a, b in zip(jax.tree_util.tree_leaves(small_csg), jax.tree_util.tree_leaves(again)):
         np.testing.assert_array_equal(a, b)
     s = sample(small_csg, (0, -8, 0), (32, 16, 32))
