@@ -119,6 +119,16 @@ def smooth(
     return out, jnp.where(wsum > 0, jnp.minimum(depth, zmin), depth)
 
 
+def _screen_samples(depth: jax.Array, scale, max_radius: float):
+    """Pixel grid, hit mask, safe depth and a sample radius in pixels shrinking with depth."""
+    H, W = depth.shape
+    ys, xs = jnp.meshgrid(jnp.arange(H, dtype=jnp.float32), jnp.arange(W, dtype=jnp.float32),
+                          indexing="ij")  # fmt: skip
+    finite = jnp.isfinite(depth)
+    z = jnp.where(finite, depth, 1.0)
+    return H, W, ys, xs, finite, z, jnp.clip(scale / z, 1.0, max_radius)
+
+
 def _offsets(key, n, H, W):
     k1, k2 = jax.random.split(key)
     r = jax.random.uniform(k1, (n,), minval=0.3, maxval=1.0)
@@ -145,13 +155,8 @@ def screen_space_normals(cam: Camera, depth, *, key, samples: int = 16, scale: f
     Returns:
         (H, W, 3) unit normals; (0, 0, -1) where the depth is empty.
     """
-    H, W = depth.shape
+    H, W, ys, xs, finite, z, rad = _screen_samples(depth, scale, 8.0)
     f = focal_length(cam)
-    ys, xs = jnp.meshgrid(jnp.arange(H, dtype=jnp.float32), jnp.arange(W, dtype=jnp.float32),
-                          indexing="ij")  # fmt: skip
-    finite = jnp.isfinite(depth)
-    z = jnp.where(finite, depth, 1.0)
-    rad = jnp.clip(scale / z, 1.0, 8.0)
     ox, oy = _offsets(key, samples, H, W)
     cx, cy = 0.5 * W, 0.5 * H
 
@@ -187,12 +192,7 @@ def ambient_occlusion(depth, *, key, samples: int = 16, scale: float = 60.0, bia
     Returns:
         (H, W) ambient factor in [0, 1] (1 = unoccluded; 1 where empty).
     """
-    H, W = depth.shape
-    ys, xs = jnp.meshgrid(jnp.arange(H, dtype=jnp.float32), jnp.arange(W, dtype=jnp.float32),
-                          indexing="ij")  # fmt: skip
-    finite = jnp.isfinite(depth)
-    z = jnp.where(finite, depth, 1.0)
-    rad = jnp.clip(scale / z, 1.0, 16.0)
+    H, W, ys, xs, finite, z, rad = _screen_samples(depth, scale, 16.0)
     ox, oy = _offsets(key, samples, H, W)
     occ = jnp.zeros_like(z)
     for k in range(samples):
