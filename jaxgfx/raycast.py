@@ -592,7 +592,7 @@ def traverse_planes(
     lod_distance: jax.Array,
     buffer_size: int | None = None,
     elements_per_step: int = 4,
-    chunks: int = 8,
+    chunks: int = 32,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
@@ -662,11 +662,25 @@ def traverse_planes(
         )
         ibuf, nbuf, stats = carry[8], carry[9], carry[10]
         stats = jnp.concatenate([stats, jnp.maximum(nbuf - K, 0)[:, None]], axis=1)
-        used = jnp.arange(K)[None, :] < nbuf[:, None]
-        trees = jax.vmap(lambda b, u: _coverage_tree(b[:, 0], b[:, 1], u, n_tree, depth_levels))(
-            ibuf, used
+
+        def resolve(k):
+            def fn(ibuf, nbuf):
+                used = jnp.arange(k)[None, :] < nbuf[:, None]
+                trees = jax.vmap(
+                    lambda b, u: _coverage_tree(b[:, 0], b[:, 1], u, n_tree, depth_levels)
+                )(ibuf[:, :k], used)
+                return _texel_entries(trees)
+
+            return fn
+
+        # The tree costs O(list length) per plane and most lists are far
+        # shorter than K, so only the chunk's longest list's prefix is used.
+        tiers = sorted({t for t in (32, 128) if t < K} | {K})
+        tier = jnp.searchsorted(jnp.asarray(tiers, jnp.int32), jnp.max(nbuf))
+        texels = jax.lax.switch(
+            jnp.minimum(tier, len(tiers) - 1), [resolve(t) for t in tiers], ibuf, nbuf
         )
-        return _texel_entries(trees), ibuf, stats
+        return texels, ibuf, stats
 
     def empty(planes):
         n = planes.shape[0]
