@@ -378,6 +378,34 @@ def _slope_to_row(cam: Camera, vertical, h, s, right, up, forward, f):
     return jnp.where(vertical, y, x)
 
 
+ELEMENT_WORDS = 5
+"""int32 words per drawn element in a plane's list (:func:`_pack_elements`)."""
+_IZ_BITS = 26
+
+
+def _pack_elements(r0, r1, top, bottom, cbase, ix, iz, lev):
+    """Drawn elements as (N, 5) int32: ``r0 | r1 << 16``, ``top | bottom << 16``,
+    colour index, cell x, ``iz | lev << 26``.
+
+    Five words instead of eight: the lists are the ray caster's largest
+    buffers, and the warp gathers three words per candidate instead of five.
+    :func:`render_rle` checks the ranges (rows and heights below 2^15, map
+    depth below 2^26).
+    """
+    return jnp.stack(
+        [r0 | (r1 << 16), top | (bottom << 16), cbase, ix, iz | (lev << _IZ_BITS)], axis=-1
+    )
+
+
+def _unpack_rows(w):
+    return w & 0xFFFF, w >> 16
+
+
+def _unpack_box(w_y, w_x, w_z):
+    """``(top, bottom, cell x, cell z, level)`` from words 1, 3 and 4."""
+    return w_y & 0xFFFF, w_y >> 16, w_x, w_z & ((1 << _IZ_BITS) - 1), w_z >> _IZ_BITS
+
+
 def _coverage_tree(r0, r1, used, n_tree, depth_levels):
     """Per-pixel coverage: a segment tree holding the minimum key over row intervals.
 
@@ -442,7 +470,7 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     p0x, p0z = ex + hx * t_enter, ez + hz * t_enter
     ix0 = jnp.clip(jnp.floor(p0x), 0, X0 - 1).astype(jnp.int32)
     iz0 = jnp.clip(jnp.floor(p0z), 0, Z0 - 1).astype(jnp.int32)
-    ibuf0 = jnp.zeros((K, 8), jnp.int32)
+    ibuf0 = jnp.zeros((K, ELEMENT_WORDS), jnp.int32)
     done0 = (t_enter >= t_far) | (pp.lo >= pp.hi)
     carry0 = (
         ix0,
@@ -536,7 +564,7 @@ def _plane_step(rle, cam: Camera, consts, carry, *, lod_distance, K: int, n_word
     slot = jnp.where(draw & (pos < K), pos, K)
     cbase = rle.color_ptr[jnp.where(inside, col, 0)].astype(jnp.int32) + drawn_before
     bc = lambda v: jnp.broadcast_to(v, (Ec,))  # noqa: E731
-    ivals = jnp.stack([r0, r1, top, bottom, cbase, bc(ix), bc(iz), bc(lev)], axis=1)
+    ivals = _pack_elements(r0, r1, top, bottom, cbase, bc(ix), bc(iz), bc(lev))
     ibuf = ibuf.at[slot].set(ivals, mode="drop")
     n_draw = jnp.sum(draw).astype(jnp.int32)
     first = k == 0
@@ -630,7 +658,7 @@ def traverse_planes(
             only planes past ``sum(seg.count)`` is skipped.
 
     Returns:
-        ``(texels (P, n) int32, elements (P, K, 8) int32, stats (P, 4) int32)``: the
+        ``(texels (P, n) int32, elements (P, K, 5) int32, stats (P, 4) int32)``: the
         column's texels resolved through the coverage tree (index of each
         row's nearest drawn element, ``>= K`` where none), the drawn elements (row range,
         top / bottom voxel, colour index, cell x, z, level), and the counts of
@@ -667,7 +695,7 @@ def traverse_planes(
             def fn(ibuf, nbuf):
                 used = jnp.arange(k)[None, :] < nbuf[:, None]
                 trees = jax.vmap(
-                    lambda b, u: _coverage_tree(b[:, 0], b[:, 1], u, n_tree, depth_levels)
+                    lambda b, u: _coverage_tree(*_unpack_rows(b[:, 0]), u, n_tree, depth_levels)
                 )(ibuf[:, :k], used)
                 return _texel_entries(trees)
 
@@ -686,7 +714,7 @@ def traverse_planes(
         n = planes.shape[0]
         return (
             jnp.full((n, n_tree), _INF_KEY, jnp.int32),
-            jnp.zeros((n, K, 8), jnp.int32),
+            jnp.zeros((n, K, ELEMENT_WORDS), jnp.int32),
             jnp.zeros((n, 4), jnp.int32),
         )
 
@@ -721,7 +749,7 @@ def traverse_plane(
     """Renders ONE plane (4.5.4): :func:`traverse_planes` for a batch of one.
 
     Returns:
-        ``(texels (n,) int32, elements (K, 8) int32, stats (4,) int32)``.
+        ``(texels (n,) int32, elements (K, 5) int32, stats (4,) int32)``.
     """
     out = traverse_planes(
         rle,
@@ -837,7 +865,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         cam: camera.
         seg: the frame's :class:`Segments`.
         texels: (P, n) int32 per-texel element indices from :func:`traverse_plane`.
-        elements: (P, K, 8) int32 drawn-element lists from :func:`traverse_plane`.
+        elements: (P, K, 5) int32 drawn-element lists from :func:`traverse_plane`
+            (see :func:`_pack_elements`).
         neighbors: static number of planes on either side tested per pixel
             (0 = the nearest texel only, as in the thesis).
 
@@ -849,8 +878,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     n_tree = texels.shape[1]
     texel = texels.reshape(-1)
     # One flat table per field: XLA:CPU gathers scalars from 1-D arrays much
-    # faster than rows of a (P, K, 8) array.
-    fields = [elements[..., k].reshape(-1) for k in range(8)]
+    # faster than rows of a (P, K, 5) array.
+    fields = [elements[..., k].reshape(-1) for k in range(ELEMENT_WORDS)]
     st, i0, cnt, row, ok = _ray_buffer_texel(cam, seg)
     origins, dirs = pixel_rays(cam, normalize=False)
     row_ok = ok & (row >= 0) & (row < n_tree)
@@ -862,7 +891,7 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         entry = jnp.take(texel, plane * n_tree + row, mode="clip")
         hit = row_ok & (entry < K)
         idx = plane * K + jnp.where(hit, entry, 0)
-        box = tuple(jnp.take(fields[k], idx, mode="clip") for k in (2, 3, 5, 6, 7))
+        box = _unpack_box(*(jnp.take(fields[k], idx, mode="clip") for k in (1, 3, 4)))
         return hit, idx, box
 
     def candidate_t(hit, box):
@@ -884,7 +913,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     # A pixel ray that enters no candidate (it passes between the sampled
     # planes' voxels) takes the point of its nearest texel's box closest to it.
     t_hit = jnp.maximum(jnp.where(t_enter <= t_exit, t_enter, 0.5 * (t_enter + t_exit)), 0.0)
-    top, bottom, cbase, lev = (jnp.take(fields[k], idx, mode="clip") for k in (2, 3, 4, 7))
+    w_y, cbase, w_z = (jnp.take(fields[k], idx, mode="clip") for k in (1, 2, 4))
+    top, bottom, _, _, lev = _unpack_box(w_y, 0, w_z)
     c = jnp.left_shift(1, lev).astype(jnp.float32)
     y_hit = origins[..., 1] + dirs[..., 1] * t_hit
     v = jnp.clip(jnp.floor(y_hit / c).astype(jnp.int32), bottom, top)
@@ -1114,6 +1144,10 @@ def render_rle(
         :class:`RenderOutput` with colour (H, W, 3), depth (H, W) and counters
         (``refined``: pixels that asked for a re-walk).
     """
+    if max(cam.width, cam.height) >= 1 << 15:
+        raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
+    if rle.shape[1] >= 1 << 15 or rle.shape[2] >= 1 << _IZ_BITS:
+        raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
     if num_planes is None:
         num_planes = default_num_planes(cam.width, cam.height, oversample)
     if max_steps is None:
