@@ -93,6 +93,7 @@ from jaxgfx.raycast import check_camera_outside as check_camera_outside
 from jaxgfx.raycast import dda_ray_3d as dda_ray_3d
 from jaxgfx.raycast import default_max_steps as default_max_steps
 from jaxgfx.raycast import default_num_planes as default_num_planes
+from jaxgfx.raycast import plane_extent as plane_extent
 from jaxgfx.raycast import plane_parameters as plane_parameters
 from jaxgfx.raycast import ray_buffer_coords as ray_buffer_coords
 from jaxgfx.raycast import reference_render as reference_render

@@ -37,6 +37,7 @@ __all__ = [
     "PlaneParams",
     "vanishing_point",
     "screen_segments",
+    "plane_extent",
     "plane_parameters",
     "traverse_plane",
     "traverse_planes",
@@ -278,6 +279,82 @@ def plane_parameters(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int)
     return PlaneParams(h, slope, safe_scale, valid, lo, hi)
 
 
+def _half_line(alpha, beta, lo, hi):
+    """Narrows the row range ``[lo, hi)`` to rows ``i`` with ``alpha (i + 0.5) + beta > 0``."""
+    flat = jnp.abs(alpha) < 1e-12
+    root = jnp.clip(-beta / jnp.where(flat, 1.0, alpha) - 0.5, -1e9, 1e9)
+    lo = jnp.where(~flat & (alpha > 0), jnp.maximum(lo, jnp.floor(root).astype(jnp.int32) + 1), lo)
+    hi = jnp.where(~flat & (alpha < 0), jnp.minimum(hi, jnp.ceil(root).astype(jnp.int32)), hi)
+    return lo, jnp.where(flat & (beta <= 0), lo, hi)
+
+
+def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
+    """Row range and slope range of ONE plane in closed form (4.5.3); vmap over ``plane``.
+
+    The same rows as :func:`plane_parameters` marks valid, without building
+    the per-row arrays: every condition on a row (its side of vp, on screen,
+    looking forward along the plane) is linear in the row coordinate, so the
+    valid rows are one interval, and the in-plane slope ``dy/dt`` is a ratio
+    of linear functions of it, monotonic there, so its range is set by the
+    two end rows.  This is the traversal's per-plane set-up; per-row arrays
+    for all planes cost more than the traversal of a small scene.
+
+    Returns:
+        ``(direction (2,), lo (), hi (), s_min (), s_max ())``; ``lo >= hi``
+        for a plane without rows.
+    """
+    s = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
+    i = plane - seg.start[s]
+    alive = (i < seg.count[s]) & (i >= 0)
+    n = jnp.maximum(seg.count[s], 1)
+    u = seg.u_lo[s] + (i.astype(jnp.float32) + seg.phase) * (seg.u_hi[s] - seg.u_lo[s]) / n
+    vp_h = seg.vp_h
+    w = vp_h[2]
+    sw = _sgn_w(w)
+    right, up, forward = camera_basis(cam)
+    f = focal_length(cam)
+    cx, cy = 0.5 * cam.width, 0.5 * cam.height
+    per = []
+    for k in range(4):
+        size_a, size_b, a_ref, vertical, neg = _seg_axes(cam, k)
+        va, vb = _ab(vp_h, vertical)
+        q = _safe_div(vb - u * w, va - a_ref * w)  # b(r) = q r + c0
+        c0 = u - a_ref * q
+        qx, qy = (u, a_ref) if vertical else (a_ref, u)
+        # Screen point (x, y) = (bx r + cx0, by r + cy0) along the plane's line.
+        bx, cx0, by, cy0 = (q, c0, 1.0, 0.0) if vertical else (1.0, 0.0, q, c0)
+        side = -1.0 if neg else 1.0
+        per.append((qx, qy, bx, cx0, by, cy0, q, c0, size_a, size_b, side, va))
+    pick = lambda j: jnp.stack([jnp.asarray(p[j], jnp.float32) for p in per])[s]  # noqa: E731
+    qx, qy, bx, cx0, by, cy0, q, c0, size_a, size_b, side, va = (pick(j) for j in range(12))
+    dq = _screen_dir(cam, qx, qy)
+    h = jnp.stack([dq[0], dq[2]])
+    hn = jnp.linalg.norm(h)
+    h = jnp.where(hn > 1e-12, h / jnp.where(hn > 1e-12, hn, 1.0), jnp.array([0.0, 1.0]))
+
+    def ray(v):
+        # Component of a screen direction along the plane (h) and along y,
+        # as linear functions (slope, offset) of the row coordinate.
+        rv = (right[0] * h[0] + right[2] * h[1]) if v is None else right[1]
+        uv = (up[0] * h[0] + up[2] * h[1]) if v is None else up[1]
+        fv = (forward[0] * h[0] + forward[2] * h[1]) if v is None else forward[1]
+        return (bx * rv - by * uv) / f, ((cx0 - cx) * rv + (cy - cy0) * uv) / f + fv
+
+    lo = jnp.int32(0)
+    hi = jnp.minimum(jnp.int32(rows), jnp.ceil(size_a - 0.5).astype(jnp.int32))
+    lo, hi = _half_line(side * w * sw, -side * va * sw, lo, hi)  # vp's side
+    lo, hi = _half_line(q, c0 + 1.0, lo, hi)  # b > -1
+    lo, hi = _half_line(-q, size_b + 1.0 - c0, lo, hi)  # b < size_b + 1
+    a_s, b_s = ray(None)
+    lo, hi = _half_line(a_s, b_s - 1e-9, lo, hi)  # looks forward along the plane
+    hi = jnp.where(alive, jnp.maximum(hi, lo), lo)
+    a_y, b_y = ray(1)
+    slope = lambda r: (a_y * r + b_y) / jnp.maximum(a_s * r + b_s, 1e-9)  # noqa: E731
+    s0 = slope(lo.astype(jnp.float32) + 0.5)
+    s1 = slope(hi.astype(jnp.float32) - 0.5)
+    return h, lo, hi, jnp.minimum(s0, s1), jnp.maximum(s0, s1)
+
+
 # ---------------------------------------------------------------------------
 # 4.5.4: per-plane traversal, projection, culling, drawing
 # ---------------------------------------------------------------------------
@@ -434,18 +511,17 @@ def _coverage_tree(r0, r1, used, n_tree, depth_levels):
 
 def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     """Per-plane constants and the initial loop state of :func:`traverse_planes`."""
-    pp = plane_parameters(cam, seg, plane, rows=rows)
+    # s_min / s_max: slopes visible in this plane, to clip element slopes to the screen.
+    h, lo, hi, s_min, s_max = plane_extent(cam, seg, plane, rows=rows)
     s_idx = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
     vertical = s_idx < 2
     right, up, forward = camera_basis(cam)
     f = focal_length(cam)
     eye = cam.position
     ex, ez = eye[0], eye[2]
-    h = pp.direction
     hx, hz = h[0], h[1]
     inv_x = _safe_div(1.0, hx, 1e-12)
     inv_z = _safe_div(1.0, hz, 1e-12)
-    big = jnp.float32(1e30)
     # Eq. 4.5 in the plane: the ray-buffer coordinate of slope s is the
     # projective map (p + q s) / (g + d s) of the plane's camera-space terms.
     hr = right[0] * hx + right[2] * hz
@@ -457,9 +533,6 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
         0.5 * cam.height * forward[1] - f * up[1],
         0.5 * cam.width * forward[1] + f * right[1],
     )
-    # Slopes visible in this plane, for clipping element slopes to the screen.
-    s_min = jnp.min(jnp.where(pp.valid, pp.row_slope, big))
-    s_max = jnp.max(jnp.where(pp.valid, pp.row_slope, -big))
     # Entry into the map's x-z box (2-D slab test).
     X0, Z0 = float(rle.shape[0]), float(rle.shape[2])
     tx0, tx1 = (0.0 - ex) * inv_x, (X0 - ex) * inv_x
@@ -471,15 +544,15 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     ix0 = jnp.clip(jnp.floor(p0x), 0, X0 - 1).astype(jnp.int32)
     iz0 = jnp.clip(jnp.floor(p0z), 0, Z0 - 1).astype(jnp.int32)
     ibuf0 = jnp.zeros((K, ELEMENT_WORDS), jnp.int32)
-    done0 = (t_enter >= t_far) | (pp.lo >= pp.hi)
+    done0 = (t_enter >= t_far) | (lo >= hi)
     carry0 = (
         ix0,
         iz0,
         jnp.int32(0),
         t_enter,
         done0,
-        pp.lo,
-        pp.hi,
+        lo,
+        hi,
         jnp.zeros((-(-rows // 32),), jnp.uint32),
         ibuf0,
         jnp.int32(0),

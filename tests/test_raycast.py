@@ -248,6 +248,32 @@ def test_neighbor_candidates_never_in_front_and_step_width_invariant(scene):
     np.testing.assert_array_equal(np.asarray(a.color), np.asarray(b.color))
 
 
+@pytest.mark.parametrize("pitch", [0.0, -30.0, -60.0, -88.0, -90.0, 89.9])
+def test_plane_extent_matches_per_row_parameters(pitch):
+    # The closed-form row range / slope range of the traversal's set-up equals
+    # what the per-row plane parameters mark valid (incl. vp on screen, at
+    # infinity and at the centre).
+    cam = camera_from_degrees([3, 5, 2], 20, pitch, 0, 55, W, H)
+    P = RC.default_num_planes(W, H, 2.0)
+    seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=P, oversample=2.0)
+    planes = jnp.arange(P)
+    pp = jax.vmap(lambda p: RC.plane_parameters(cam, seg, p, rows=W))(planes)
+    h, lo, hi, s_min, s_max = jax.vmap(lambda p: RC.plane_extent(cam, seg, p, rows=W))(planes)
+    lo0, hi0, valid = np.asarray(pp.lo), np.asarray(pp.hi), np.asarray(pp.valid)
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    empty = lo0 >= hi0
+    np.testing.assert_array_equal(lo >= hi, empty)
+    np.testing.assert_array_equal(lo[~empty], lo0[~empty])
+    np.testing.assert_array_equal(hi[~empty], hi0[~empty])
+    assert np.all(valid.sum(1) == np.where(empty, 0, hi0 - lo0))  # one interval
+    np.testing.assert_allclose(np.asarray(h), np.asarray(pp.direction), atol=1e-6)
+    slope = np.asarray(pp.row_slope)
+    ref_min = np.where(valid, slope, np.inf).min(1)[~empty]
+    ref_max = np.where(valid, slope, -np.inf).max(1)[~empty]
+    np.testing.assert_allclose(np.asarray(s_min)[~empty], ref_min, rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(s_max)[~empty], ref_max, rtol=1e-3, atol=1e-4)
+
+
 def test_traverse_plane_matches_batch(scene):
     _, rle, _, _ = scene
     cam = CAMERAS[2][1]
