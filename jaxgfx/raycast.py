@@ -461,7 +461,7 @@ _IZ_BITS = 26
 
 
 def _pack_elements(r0, r1, top, bottom, cbase, ix, iz, lev):
-    """Drawn elements as (N, 5) int32: ``r0 | r1 << 16``, ``top | bottom << 16``,
+    """Drawn elements as (N, 5) int32 words: ``r0 | r1 << 16``, ``top | bottom << 16``,
     colour index, cell x, ``iz | lev << 26``.
 
     Five words instead of eight: the lists are the ray caster's largest
@@ -543,7 +543,7 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     p0x, p0z = ex + hx * t_enter, ez + hz * t_enter
     ix0 = jnp.clip(jnp.floor(p0x), 0, X0 - 1).astype(jnp.int32)
     iz0 = jnp.clip(jnp.floor(p0z), 0, Z0 - 1).astype(jnp.int32)
-    ibuf0 = jnp.zeros((K, ELEMENT_WORDS), jnp.int32)
+    ibuf0 = jnp.zeros((ELEMENT_WORDS, K), jnp.int32)
     done0 = (t_enter >= t_far) | (lo >= hi)
     carry0 = (
         ix0,
@@ -638,7 +638,7 @@ def _plane_step(rle, cam: Camera, consts, carry, *, lod_distance, K: int, n_word
     cbase = rle.color_ptr[jnp.where(inside, col, 0)].astype(jnp.int32) + drawn_before
     bc = lambda v: jnp.broadcast_to(v, (Ec,))  # noqa: E731
     ivals = _pack_elements(r0, r1, top, bottom, cbase, bc(ix), bc(iz), bc(lev))
-    ibuf = ibuf.at[slot].set(ivals, mode="drop")
+    ibuf = ibuf.at[:, slot].set(ivals.T, mode="drop")
     n_draw = jnp.sum(draw).astype(jnp.int32)
     first = k == 0
     stats = stats + jnp.stack(
@@ -731,7 +731,7 @@ def traverse_planes(
             only planes past ``sum(seg.count)`` is skipped.
 
     Returns:
-        ``(texels (P, n) int32, elements (P, K, 5) int32, stats (P, 4) int32)``: the
+        ``(texels (P, n) int32, elements (P, 5, K) int32, stats (P, 4) int32)``: the
         column's texels resolved through the coverage tree (index of each
         row's nearest drawn element, ``>= K`` where none), the drawn elements (row range,
         top / bottom voxel, colour index, cell x, z, level), and the counts of
@@ -768,15 +768,15 @@ def traverse_planes(
             def fn(ibuf, nbuf):
                 used = jnp.arange(k)[None, :] < nbuf[:, None]
                 trees = jax.vmap(
-                    lambda b, u: _coverage_tree(*_unpack_rows(b[:, 0]), u, n_tree, depth_levels)
-                )(ibuf[:, :k], used)
+                    lambda b, u: _coverage_tree(*_unpack_rows(b[0]), u, n_tree, depth_levels)
+                )(ibuf[:, :, :k], used)
                 return _texel_entries(trees)
 
             return fn
 
         # The tree costs O(list length) per plane and most lists are far
         # shorter than K, so only the chunk's longest list's prefix is used.
-        tiers = sorted({t for t in (32, 128) if t < K} | {K})
+        tiers = sorted({t for t in (16, 32, 64, 128, 256) if t < K} | {K})
         tier = jnp.searchsorted(jnp.asarray(tiers, jnp.int32), jnp.max(nbuf))
         texels = jax.lax.switch(
             jnp.minimum(tier, len(tiers) - 1), [resolve(t) for t in tiers], ibuf, nbuf
@@ -787,7 +787,7 @@ def traverse_planes(
         n = planes.shape[0]
         return (
             jnp.full((n, n_tree), _INF_KEY, jnp.int32),
-            jnp.zeros((n, K, ELEMENT_WORDS), jnp.int32),
+            jnp.zeros((n, ELEMENT_WORDS, K), jnp.int32),
             jnp.zeros((n, 4), jnp.int32),
         )
 
@@ -822,7 +822,7 @@ def traverse_plane(
     """Renders ONE plane (4.5.4): :func:`traverse_planes` for a batch of one.
 
     Returns:
-        ``(texels (n,) int32, elements (K, 5) int32, stats (4,) int32)``.
+        ``(texels (n,) int32, elements (5, K) int32, stats (4,) int32)``.
     """
     out = traverse_planes(
         rle,
@@ -938,7 +938,7 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         cam: camera.
         seg: the frame's :class:`Segments`.
         texels: (P, n) int32 per-texel element indices from :func:`traverse_plane`.
-        elements: (P, K, 5) int32 drawn-element lists from :func:`traverse_plane`
+        elements: (P, 5, K) int32 drawn-element lists from :func:`traverse_plane`
             (see :func:`_pack_elements`).
         neighbors: static number of planes on either side tested per pixel
             (0 = the nearest texel only, as in the thesis).
@@ -947,12 +947,15 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         ``(color (H, W, 3), depth (H, W), entered (H, W) bool)``; ``entered``
         is False where the pixel's ray entered none of the candidate boxes.
     """
-    P, K = elements.shape[0], elements.shape[1]
+    P, K = elements.shape[0], elements.shape[2]
     n_tree = texels.shape[1]
     texel = texels.reshape(-1)
-    # One flat table per field: XLA:CPU gathers scalars from 1-D arrays much
-    # faster than rows of a (P, K, 5) array.
-    fields = [elements[..., k].reshape(-1) for k in range(ELEMENT_WORDS)]
+    # Scalar gathers from the flat (free) view: word k of entry e of plane p
+    # is at (p 5 + k) K + e.  XLA:CPU gathers scalars from 1-D arrays much
+    # faster than rows, and per-word copies of the lists would cost more
+    # than the gathers.
+    flat = elements.reshape(-1)
+    word = lambda k, idx: jnp.take(flat, idx + k * K, mode="clip")  # noqa: E731
     st, i0, cnt, row, ok = _ray_buffer_texel(cam, seg)
     origins, dirs = pixel_rays(cam, normalize=False)
     row_ok = ok & (row >= 0) & (row < n_tree)
@@ -963,8 +966,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         plane = jnp.clip(st + i, 0, P - 1)
         entry = jnp.take(texel, plane * n_tree + row, mode="clip")
         hit = row_ok & (entry < K)
-        idx = plane * K + jnp.where(hit, entry, 0)
-        box = _unpack_box(*(jnp.take(fields[k], idx, mode="clip") for k in (1, 3, 4)))
+        idx = plane * (ELEMENT_WORDS * K) + jnp.where(hit, entry, 0)
+        box = _unpack_box(*(word(k, idx) for k in (1, 3, 4)))
         return hit, idx, box
 
     def candidate_t(hit, box):
@@ -986,7 +989,7 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     # A pixel ray that enters no candidate (it passes between the sampled
     # planes' voxels) takes the point of its nearest texel's box closest to it.
     t_hit = jnp.maximum(jnp.where(t_enter <= t_exit, t_enter, 0.5 * (t_enter + t_exit)), 0.0)
-    w_y, cbase, w_z = (jnp.take(fields[k], idx, mode="clip") for k in (1, 2, 4))
+    w_y, cbase, w_z = (word(k, idx) for k in (1, 2, 4))
     top, bottom, _, _, lev = _unpack_box(w_y, 0, w_z)
     c = jnp.left_shift(1, lev).astype(jnp.float32)
     y_hit = origins[..., 1] + dirs[..., 1] * t_hit
