@@ -230,6 +230,23 @@ def _screen_dir(cam: Camera, x, y):
     return ((x - 0.5 * cam.width) / f) * right + ((0.5 * cam.height - y) / f) * up + forward
 
 
+def _plane_u(seg: Segments, plane):
+    """(segment, alive, u) of a plane: its parameter on the segment's reference line."""
+    s = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
+    i = plane - seg.start[s]
+    alive = (i < seg.count[s]) & (i >= 0)
+    n = jnp.maximum(seg.count[s], 1)
+    u = seg.u_lo[s] + (i.astype(jnp.float32) + seg.phase) * (seg.u_hi[s] - seg.u_lo[s]) / n
+    return s, alive, u
+
+
+def _unit_xz(d):
+    """The x-z part of a direction, normalised (+z for a vertical one; double where)."""
+    h = jnp.stack([d[0], d[2]])
+    hn = jnp.linalg.norm(h)
+    return jnp.where(hn > 1e-12, h / jnp.where(hn > 1e-12, hn, 1.0), jnp.array([0.0, 1.0]))
+
+
 def plane_parameters(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int) -> PlaneParams:
     """Parameters of ONE plane of the ray buffer (4.5.3); vmap over ``plane``.
 
@@ -239,11 +256,7 @@ def plane_parameters(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int)
         plane: () int32 plane index in ``[0, num_planes)``.
         rows: static ray-buffer column length, ``max(width, height)``.
     """
-    s = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
-    i = plane - seg.start[s]
-    alive = (i < seg.count[s]) & (i >= 0)
-    n = jnp.maximum(seg.count[s], 1)
-    u = seg.u_lo[s] + (i.astype(jnp.float32) + seg.phase) * (seg.u_hi[s] - seg.u_lo[s]) / n
+    s, alive, u = _plane_u(seg, plane)
     vp_h = seg.vp_h
     w = vp_h[2]
     sw = _sgn_w(w)
@@ -264,9 +277,7 @@ def plane_parameters(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int)
     pick = lambda j: jnp.stack([o[j] for o in outs])[s]  # noqa: E731
     qx, qy, xs, ys, valid = pick(0), pick(1), pick(2), pick(3), pick(4)
     dq = _screen_dir(cam, qx, qy)
-    h = jnp.stack([dq[0], dq[2]])
-    hn = jnp.linalg.norm(h)
-    h = jnp.where(hn > 1e-12, h / jnp.where(hn > 1e-12, hn, 1.0), jnp.array([0.0, 1.0]))
+    h = _unit_xz(dq)
     d = jax.vmap(lambda x, y: _screen_dir(cam, x, y))(xs, ys)
     scale = d[:, 0] * h[0] + d[:, 2] * h[1]
     valid = valid & alive & (scale > 1e-9)
@@ -303,11 +314,7 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
         ``(direction (2,), lo (), hi (), s_min (), s_max ())``; ``lo >= hi``
         for a plane without rows.
     """
-    s = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
-    i = plane - seg.start[s]
-    alive = (i < seg.count[s]) & (i >= 0)
-    n = jnp.maximum(seg.count[s], 1)
-    u = seg.u_lo[s] + (i.astype(jnp.float32) + seg.phase) * (seg.u_hi[s] - seg.u_lo[s]) / n
+    s, alive, u = _plane_u(seg, plane)
     vp_h = seg.vp_h
     w = vp_h[2]
     sw = _sgn_w(w)
@@ -328,9 +335,7 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
     pick = lambda j: jnp.stack([jnp.asarray(p[j], jnp.float32) for p in per])[s]  # noqa: E731
     qx, qy, bx, cx0, by, cy0, q, c0, size_a, size_b, side, va = (pick(j) for j in range(12))
     dq = _screen_dir(cam, qx, qy)
-    h = jnp.stack([dq[0], dq[2]])
-    hn = jnp.linalg.norm(h)
-    h = jnp.where(hn > 1e-12, h / jnp.where(hn > 1e-12, hn, 1.0), jnp.array([0.0, 1.0]))
+    h = _unit_xz(dq)
 
     def ray(v):
         # Component of a screen direction along the plane (h) and along y,
