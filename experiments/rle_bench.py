@@ -327,8 +327,10 @@ def run(args):
     # mean more trees behind the first; mip levels + LOD bands and the early
     # exit of the plane loop keep the traversal short.
     tree = scenes[1][1]
-    # The full mip chain down to one voxel per tile, as in the thesis (4.4.7).
-    rle_l = V.encode_rle(tree, levels=int(np.log2(max(tree.shape))) + 1)
+    # The full mip chain, as in the thesis (4.4.7), as far as instances allow
+    # (a tile's x / z size must stay divisible by 2 ** (levels - 1)).
+    side = int(np.gcd(tree.shape[0], tree.shape[2]))
+    rle_l = V.encode_rle(tree, levels=(side & -side).bit_length())
     tx, ty, tz = tree.shape
     counts = [1, 4] if quick else [1, 100, 1600]
     w, h = (128, 96) if quick else (512, 384)
