@@ -994,8 +994,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     # A pixel ray that enters no candidate (it passes between the sampled
     # planes' voxels) takes the point of its nearest texel's box closest to it.
     t_hit = jnp.maximum(jnp.where(t_enter <= t_exit, t_enter, 0.5 * (t_enter + t_exit)), 0.0)
-    w_y, cbase, w_z = (word(k, idx) for k in (1, 2, 4))
-    top, bottom, _, _, lev = _unpack_box(w_y, 0, w_z)
+    top, bottom, _, _, lev = box
+    cbase = word(2, idx)
     c = jnp.left_shift(1, lev).astype(jnp.float32)
     y_hit = origins[..., 1] + dirs[..., 1] * t_hit
     v = jnp.clip(jnp.floor(y_hit / c).astype(jnp.int32), bottom, top)
