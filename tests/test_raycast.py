@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -217,6 +219,14 @@ def test_instances_render_like_copies(scene):
     out = render(V.as_jax(inst), cam)
     d_ok, c_ok, n = _agreement(out, ref)
     assert n > 800 and d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE
+    # Empty-space skipping only drops empty cells: without the distance map
+    # (every jump one cell) the frame and the element counts are identical.
+    plain = dataclasses.replace(inst, empty_dist=np.zeros_like(inst.empty_dist))
+    out0 = render(V.as_jax(plain), cam)
+    np.testing.assert_array_equal(np.asarray(out0.depth), np.asarray(out.depth))
+    np.testing.assert_array_equal(np.asarray(out0.color), np.asarray(out.color))
+    for k in ("elements_total", "elements_processed", "elements_rendered"):
+        assert int(out0.stats[k]) == int(out.stats[k])
 
 
 def test_even_oversample_keeps_pixel_aligned_planes(scene):
