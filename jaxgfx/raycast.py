@@ -420,7 +420,7 @@ def _row_mask(r0, r1, n_words):
 
 
 def _map_column(rle, ix, iz, lev, off, sx, sz):
-    """(has column, pointer-map entry) of map cell (ix, iz) at level ``lev``.
+    """Map cell (ix, iz) at level ``lev``: (inside the map, tile holds an instance, entry).
 
     The map is a grid of object-sized tiles (:func:`jaxgfx.voxels.place_instances`);
     the cell's column is the object's column at the position inside its tile.
@@ -429,19 +429,10 @@ def _map_column(rle, ix, iz, lev, off, sx, sz):
     xl, zl = sx[lev], sz[lev]
     ti = jnp.floor_divide(ix, xl)
     tk = jnp.floor_divide(iz, zl)
-    inside = (ix >= 0) & (iz >= 0) & (ti < tx) & (tk < tz)
+    in_map = (ix >= 0) & (iz >= 0) & (ti < tx) & (tk < tz)
     tile = rle.tiles[jnp.clip(ti, 0, tx - 1), jnp.clip(tk, 0, tz - 1)]
     col = off[lev] + (ix - ti * xl) * zl + (iz - tk * zl)
-    return inside & (tile >= 0), col
-
-
-def _in_map(rle, ix, iz, lev, sx, sz):
-    """(cell inside the map, its tile holds an instance) of map cell (ix, iz) at ``lev``."""
-    tx, tz = rle.tiles.shape
-    ti = jnp.floor_divide(ix, sx[lev])
-    tk = jnp.floor_divide(iz, sz[lev])
-    in_map = (ix >= 0) & (iz >= 0) & (ti < tx) & (tk < tz)
-    return in_map, rle.tiles[jnp.clip(ti, 0, tx - 1), jnp.clip(tk, 0, tz - 1)] >= 0
+    return in_map, tile >= 0, col
 
 
 def _empty_box(rle, ix, iz, lev, col, has_tile, sx, sz):
@@ -619,8 +610,8 @@ def _plane_step(rle, cam: Camera, consts, carry, *, lod_distance, K: int, n_word
     nx = jnp.where(jnp.abs(hx) < 1e-12, big, nx)
     nz = jnp.where(jnp.abs(hz) < 1e-12, big, nz)
     t_out = jnp.minimum(jnp.minimum(nx, nz), t_far)
-    inside, col = _map_column(rle, ix, iz, lev, off, sx, sz)
-    in_map, has_tile = _in_map(rle, ix, iz, lev, sx, sz)
+    in_map, has_tile, col = _map_column(rle, ix, iz, lev, off, sx, sz)
+    inside = in_map & has_tile
     ok = inside & ~done
     n, top, bottom, valid, drawn_before = _column_elements(rle, col, inside, sy[lev], E)
     y_lo = bottom.astype(jnp.float32) * c
@@ -772,8 +763,8 @@ def traverse_planes(
     steps.  From an empty cell the walk jumps to the first cell past the
     empty square that ``rle.empty_dist`` guarantees around it (or past an
     empty instance tile), stopping in the cell where the LOD band ends, so it
-    visits exactly the non-empty cells of the plain DDA in fewer steps.  Each element of a
-    visited column is projected once into the column (Eq. 4.5); elements left
+    visits exactly the non-empty cells of the plain DDA in fewer steps.  Each
+    element of a visited column is projected once into the column (Eq. 4.5); elements left
     after floating-horizon culling are appended, front to back, to a list of
     drawn intervals, and a coverage tree names every texel's first (nearest)
     writer: each ray-buffer pixel is drawn once.  The tree is resolved into
@@ -1073,7 +1064,8 @@ def _voxel_lookup(rle, x, y, z):
     """(solid, colour index) of level-0 voxel (x, y, z) by decoding its RLE column."""
     L, off, sx, sy, sz = _level_tables(rle)
     Y = rle.level_shapes[0][1]
-    has, col = _map_column(rle, x, z, 0, off, sx, sz)
+    in_map, has_tile, col = _map_column(rle, x, z, 0, off, sx, sz)
+    has = in_map & has_tile
     inside = has & (y >= 0) & (y < Y)
     n, top, bottom, valid, drawn_before = _column_elements(rle, col, inside, Y, rle.max_elements)
     hit = valid & (y <= top) & (y >= bottom)
