@@ -187,11 +187,16 @@ def make_mesh_fn():
     return jax.jit(lambda cam, v, f, a: rasterize(cam, v, f, a))
 
 
+def steady(times_per_camera) -> float:
+    """Fastest frame per camera (this shared 2-core box drifts by tens of
+    percent), averaged over the cameras."""
+    return float(np.mean([min(t) for t in times_per_camera]))
+
+
 def timed(fn, cams, repeats=1):
     """(first-call seconds, steady seconds per frame, last output).
 
-    Steady time: the fastest of ``repeats`` frames per camera (this shared
-    2-core box drifts by tens of percent), averaged over the cameras.
+    Steady time: :func:`steady` over ``repeats`` frames per camera.
     """
     t0 = time.perf_counter()
     out = jax.block_until_ready(fn(cams[0]))
@@ -202,7 +207,7 @@ def timed(fn, cams, repeats=1):
             t0 = time.perf_counter()
             out = jax.block_until_ready(fn(cam))
             times[i].append(time.perf_counter() - t0)
-    return first, float(np.mean([min(t) for t in times])), out
+    return first, steady(times), out
 
 
 def aa_2x1(img):
@@ -402,12 +407,12 @@ def run(args):
                         t_splat[b][i].append(time.perf_counter() - t0)
         base = None
         for b, (r, _, f_sp) in enumerate(built):
-            ours = float(np.mean([min(t) for t in t_ours[b]]))
+            ours = steady(t_ours[b])
             base = ours if base is None else base
             r["ours_ms"] = round(1e3 * ours, 1)
             r["ours_compile_s"] = round(r.pop("_first") - ours, 1)
             if f_sp is not None:
-                t_sp = float(np.mean([min(t) for t in t_splat[b]]))
+                t_sp = steady(t_splat[b])
                 r["splat_ms"] = round(1e3 * t_sp, 1)
                 r["splat/ours"] = round(t_sp / ours, 2)
             r["time/1 instance"] = round(ours / base, 2)
