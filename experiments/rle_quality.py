@@ -7,9 +7,9 @@ normals and ambient occlusion (Fig. 4.19); writes ``quality.png`` (a labelled
 grid is left to the reader: columns no AA / 2x1 / 2x2, rows raw / smoothed /
 shaded) and a timing table.
 
-Note on 2x1 AA: the thesis renders the same view with pixels half as wide;
-our square-pixel camera at ``2W x H`` sees a twice wider field of view, so the
-2x1 column shows that wider view squeezed (see :func:`jaxgfx.post.antialias`).
+Every AA frame shows the same view: :func:`jaxgfx.camera.supersampled`
+renders it on pixels ``1 / fx`` by ``1 / fy`` as large (2x1: half as wide, as
+in the thesis), and :func:`jaxgfx.post.antialias` averages them back.
 
 Usage::
 
@@ -32,7 +32,7 @@ import numpy as np
 from jaxgfx import post
 from jaxgfx import raycast as RC
 from jaxgfx import voxels as V
-from jaxgfx.camera import look_at
+from jaxgfx.camera import look_at, supersampled
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     )
     tiles, rows = [], []
     for fx, fy in ((1, 1), (2, 1), (2, 2)):
-        cam = look_at(eye, c, 50, w * fx, h * fy)
+        cam = supersampled(look_at(eye, c, 50, w, h), (fx, fy))
         t0 = time.perf_counter()
         out = jax.block_until_ready(render(rle, cam))
         first = time.perf_counter() - t0

@@ -30,12 +30,14 @@ from jaxgfx.camera import camera_from_degrees as camera_from_degrees
 from jaxgfx.camera import camera_matrix as camera_matrix
 from jaxgfx.camera import camera_to_screen as camera_to_screen
 from jaxgfx.camera import focal_length as focal_length
+from jaxgfx.camera import focal_lengths as focal_lengths
 from jaxgfx.camera import look_at as look_at
 from jaxgfx.camera import orbit_cameras as orbit_cameras
 from jaxgfx.camera import pixel_rays as pixel_rays
 from jaxgfx.camera import project as project
 from jaxgfx.camera import projection_matrix as projection_matrix
 from jaxgfx.camera import stack_cameras as stack_cameras
+from jaxgfx.camera import supersampled as supersampled
 from jaxgfx.camera import validate_camera as validate_camera
 from jaxgfx.camera import view_matrix as view_matrix
 from jaxgfx.camera import world_to_camera as world_to_camera

@@ -14,7 +14,10 @@ Conventions (used by every module of jaxgfx):
 * Camera space: ``x`` right, ``y`` up, ``z`` forward (distance along the view
   axis).  *Depth* everywhere in jaxgfx means camera-space ``z``.
 * Screen: pixel ``(i, j)`` = (column, row), row 0 at the top, pixel centres
-  at ``(i + 0.5, j + 0.5)``.
+  at ``(i + 0.5, j + 0.5)``.  Pixels are square unless ``pixel_aspect``
+  (pixel width / height) says otherwise: :func:`supersampled` renders the
+  same view on a finer grid for anti-aliasing (the thesis's 2x1 AA uses
+  pixels half as wide, 4.5.6.2).
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ __all__ = [
     "orbit_cameras",
     "camera_basis",
     "focal_length",
+    "focal_lengths",
+    "supersampled",
     "world_to_camera",
     "camera_to_screen",
     "project",
@@ -60,6 +65,8 @@ class Camera:
         far: () far clipping distance, > near.
         width: static int, image width in pixels.
         height: static int, image height in pixels.
+        pixel_aspect: static float, pixel width / pixel height (1 = square;
+            0.5 for the thesis's 2x1 AA frame, see :func:`supersampled`).
     """
 
     position: jax.Array
@@ -71,6 +78,7 @@ class Camera:
     far: jax.Array
     width: int = dataclasses.field(metadata=dict(static=True), default=640)
     height: int = dataclasses.field(metadata=dict(static=True), default=480)
+    pixel_aspect: float = dataclasses.field(metadata=dict(static=True), default=1.0)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -93,6 +101,11 @@ def validate_camera(cam: Camera) -> Camera:
     """
     _check_size("width", cam.width)
     _check_size("height", cam.height)
+    pa = cam.pixel_aspect
+    if isinstance(pa, bool) or not isinstance(pa, (int, float, np.integer, np.floating)):
+        raise TypeError(f"camera pixel_aspect must be a float, got {type(pa).__name__}")
+    if not (math.isfinite(pa) and pa > 0):
+        raise ValueError(f"camera pixel_aspect must be finite and > 0, got {pa}")
     for name in ("position", "yaw", "pitch", "roll", "fov_y", "near", "far"):
         value = getattr(cam, name)
         if isinstance(value, jax.core.Tracer):
@@ -181,8 +194,38 @@ def camera_basis(cam: Camera) -> tuple[jax.Array, jax.Array, jax.Array]:
 
 
 def focal_length(cam: Camera) -> jax.Array:
-    """Focal length in pixels: ``(height / 2) / tan(fov_y / 2)``."""
+    """Vertical focal length in pixels: ``(height / 2) / tan(fov_y / 2)``."""
     return 0.5 * cam.height / jnp.tan(0.5 * cam.fov_y)
+
+
+def focal_lengths(cam: Camera) -> tuple[jax.Array, jax.Array]:
+    """Horizontal and vertical focal lengths in pixels, ``(f / pixel_aspect, f)``."""
+    f = focal_length(cam)
+    return f / cam.pixel_aspect, f
+
+
+def supersampled(cam: Camera, factor: tuple[int, int]) -> Camera:
+    """The same view on a grid ``factor = (fx, fy)`` times finer (anti-aliasing).
+
+    The frame is ``fx W x fy H`` pixels of ``1 / fx`` by ``1 / fy`` of the
+    original pixel, so :func:`jaxgfx.post.antialias` with the same factor
+    gives back a ``W x H`` image of the original view.  ``(2, 1)`` is the
+    thesis's 2x1 AA (pixels half as wide, 4.5.6.2), ``(2, 2)`` 2x2 AA.
+    """
+    try:
+        fx, fy = (int(v) for v in factor)
+    except (TypeError, ValueError):
+        raise TypeError(f"factor must be a pair of ints, got {factor!r}") from None
+    if fx < 1 or fy < 1:
+        raise ValueError(f"factor must be positive, got {factor}")
+    return validate_camera(
+        dataclasses.replace(
+            cam,
+            width=cam.width * fx,
+            height=cam.height * fy,
+            pixel_aspect=cam.pixel_aspect * fy / fx,
+        )
+    )
 
 
 def view_matrix(cam: Camera) -> jax.Array:
@@ -208,11 +251,11 @@ def camera_to_screen(cam: Camera, p_cam: jax.Array) -> jax.Array:
     garbage (the division is guarded) and must be masked by the caller using
     the depth.
     """
-    f = focal_length(cam)
+    fx, fy = focal_lengths(cam)
     z = p_cam[..., 2]
     safe_z = jnp.where(jnp.abs(z) > 1e-12, z, 1e-12)
-    sx = 0.5 * cam.width + f * p_cam[..., 0] / safe_z
-    sy = 0.5 * cam.height - f * p_cam[..., 1] / safe_z
+    sx = 0.5 * cam.width + fx * p_cam[..., 0] / safe_z
+    sy = 0.5 * cam.height - fy * p_cam[..., 1] / safe_z
     return jnp.stack([sx, sy], axis=-1)
 
 
@@ -237,9 +280,9 @@ def pixel_rays(cam: Camera, normalize: bool = True) -> tuple[jax.Array, jax.Arra
     Returns:
         ``(origins, directions)``, each (H, W, 3) in world space.
     """
-    f = focal_length(cam)
-    xs = (jnp.arange(cam.width, dtype=jnp.float32) + 0.5 - 0.5 * cam.width) / f
-    ys = (0.5 * cam.height - jnp.arange(cam.height, dtype=jnp.float32) - 0.5) / f
+    fx, fy = focal_lengths(cam)
+    xs = (jnp.arange(cam.width, dtype=jnp.float32) + 0.5 - 0.5 * cam.width) / fx
+    ys = (0.5 * cam.height - jnp.arange(cam.height, dtype=jnp.float32) - 0.5) / fy
     gx, gy = jnp.meshgrid(xs, ys)
     right, up, forward = camera_basis(cam)
     d = gx[..., None] * right + gy[..., None] * up + forward
@@ -254,7 +297,7 @@ def projection_matrix(cam: Camera) -> jax.Array:
 
     ``clip = P @ [x, y, z, 1]``; ``ndc = clip[:3] / clip[3]`` with ``clip[3] = z``.
     """
-    aspect = cam.width / cam.height
+    aspect = cam.width * cam.pixel_aspect / cam.height
     t = 1.0 / jnp.tan(0.5 * cam.fov_y)
     n, fa = cam.near, cam.far
     zero = jnp.zeros_like(t)
@@ -336,7 +379,9 @@ def stack_cameras(cams) -> Camera:
     cams = list(cams)
     if not cams:
         raise ValueError("stack_cameras: need at least one camera")
-    shapes = {(c.width, c.height) for c in cams}
+    shapes = {(c.width, c.height, c.pixel_aspect) for c in cams}
     if len(shapes) != 1:
-        raise ValueError(f"stack_cameras: cameras differ in resolution {sorted(shapes)}")
+        raise ValueError(
+            f"stack_cameras: cameras differ in (width, height, pixel_aspect) {sorted(shapes)}"
+        )
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *cams)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxgfx.camera import Camera, focal_length
+from jaxgfx.camera import Camera, focal_lengths
 
 __all__ = [
     "antialias",
@@ -43,12 +43,8 @@ def antialias(color, depth, factor: tuple[int, int] = (2, 1)):
 
     The thesis's 2x1 AA renders the *same view* with twice the horizontal
     samples (pixels half as wide as tall) and averages horizontal pairs.
-    :class:`jaxgfx.camera.Camera` has square pixels, so a ``2W x H`` camera
-    with the same ``fov_y`` sees a twice wider field of view: its 2x1
-    average is a horizontally squeezed wider image.  Such a frame has the
-    thesis's sample count and row layout (fine for timing, as in
-    ``experiments/rle_bench.py``) but not its picture; for images use 2x2 AA
-    (``2W x 2H``, the same view) until the camera gains a pixel aspect ratio.
+    Render the frame with ``jaxgfx.camera.supersampled(cam, factor)`` (same
+    view, ``pixel_aspect`` scaled) and pass it here with the same factor.
 
     Args:
         color: (H * fy, W * fx, C).
@@ -156,13 +152,13 @@ def screen_space_normals(cam: Camera, depth, *, key, samples: int = 16, scale: f
         (H, W, 3) unit normals; (0, 0, -1) where the depth is empty.
     """
     H, W, ys, xs, finite, z, rad = _screen_samples(depth, scale, 8.0)
-    f = focal_length(cam)
+    fx, fy = focal_lengths(cam)
     ox, oy = _offsets(key, samples, H, W)
     cx, cy = 0.5 * W, 0.5 * H
 
     def point(zz, x, y):
         # Camera-space point of pixel centre (x, y) at depth zz.
-        return jnp.stack([zz * (x + 0.5 - cx) / f, zz * (cy - y - 0.5) / f, zz], axis=-1)
+        return jnp.stack([zz * (x + 0.5 - cx) / fx, zz * (cy - y - 0.5) / fy, zz], axis=-1)
 
     p0 = point(z, xs, ys)
     tx = jnp.zeros_like(p0)

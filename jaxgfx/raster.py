@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx.camera import Camera, focal_length, validate_camera, world_to_camera
+from jaxgfx.camera import Camera, focal_lengths, validate_camera, world_to_camera
 
 __all__ = [
     "RasterOutput",
@@ -200,11 +200,11 @@ def triangle_setup(
         keep: (2F,) bool, extra per-slot mask (e.g. back-face culling).
         block: tile edge length in pixels.
     """
-    fl = focal_length(cam)
+    flx, fly = focal_lengths(cam)
     x, y, z = tris.verts[0], tris.verts[1], tris.verts[2]  # (3 corners, T)
     z = jnp.where(tris.valid, z, 1.0)
-    sx = jnp.where(tris.valid, 0.5 * cam.width + fl * x / z, 0.0)
-    sy = jnp.where(tris.valid, 0.5 * cam.height - fl * y / z, 0.0)
+    sx = jnp.where(tris.valid, 0.5 * cam.width + flx * x / z, 0.0)
+    sy = jnp.where(tris.valid, 0.5 * cam.height - fly * y / z, 0.0)
     qx, qy = jnp.roll(sx, -1, axis=0), jnp.roll(sy, -1, axis=0)  # edge i: p_i -> p_{i+1}
     # Canonical direction: start at the endpoint lower on screen (larger y),
     # ties broken by smaller x, so both owners of an edge agree bit for bit.
@@ -382,9 +382,9 @@ def resolve(
         ``(depth (H,W), tri_id (H,W), bary (H,W,3))``.
     """
     h, w = cam.height, cam.width
-    fl = focal_length(cam)
-    xs = (jnp.arange(w, dtype=jnp.float32) + 0.5 - 0.5 * w) / fl
-    ys = (0.5 * h - jnp.arange(h, dtype=jnp.float32) - 0.5) / fl
+    flx, fly = focal_lengths(cam)
+    xs = (jnp.arange(w, dtype=jnp.float32) + 0.5 - 0.5 * w) / flx
+    ys = (0.5 * h - jnp.arange(h, dtype=jnp.float32) - 0.5) / fly
     gx, gy = jnp.meshgrid(xs, ys)
     ray = jnp.stack([gx, gy, jnp.ones_like(gx)], axis=-1).reshape(-1, 3)
     hit = face_id != _NO_TRI

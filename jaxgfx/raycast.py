@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx.camera import Camera, camera_basis, focal_length, pixel_rays
+from jaxgfx.camera import Camera, camera_basis, focal_lengths, pixel_rays
 
 __all__ = [
     "RenderOutput",
@@ -147,10 +147,10 @@ def vanishing_point(cam: Camera) -> jax.Array:
         (3,) ``(x w, y w, w)`` with ``w = sin(pitch)`` for a camera without roll.
     """
     right, up, forward = camera_basis(cam)
-    f = focal_length(cam)
+    fx, fy = focal_lengths(cam)
     cx, cy = 0.5 * cam.width, 0.5 * cam.height
     w = forward[1]
-    return jnp.stack([cx * w + f * right[1], cy * w - f * up[1], w])
+    return jnp.stack([cx * w + fx * right[1], cy * w - fy * up[1], w])
 
 
 def _seg_axes(cam: Camera, s: int):
@@ -227,8 +227,8 @@ def screen_segments(cam: Camera, vp_h: jax.Array, *, num_planes: int, oversample
 def _screen_dir(cam: Camera, x, y):
     """World direction (3,) of screen point (x, y), scaled to camera z = 1."""
     right, up, forward = camera_basis(cam)
-    f = focal_length(cam)
-    return ((x - 0.5 * cam.width) / f) * right + ((0.5 * cam.height - y) / f) * up + forward
+    fx, fy = focal_lengths(cam)
+    return ((x - 0.5 * cam.width) / fx) * right + ((0.5 * cam.height - y) / fy) * up + forward
 
 
 def _plane_u(seg: Segments, plane):
@@ -320,7 +320,8 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
     w = vp_h[2]
     sw = _sgn_w(w)
     right, up, forward = camera_basis(cam)
-    f = focal_length(cam)
+    _, fy = focal_lengths(cam)
+    pa = cam.pixel_aspect
     cx, cy = 0.5 * cam.width, 0.5 * cam.height
     per = []
     for k in range(4):
@@ -344,7 +345,8 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
         rv = (right[0] * h[0] + right[2] * h[1]) if v is None else right[1]
         uv = (up[0] * h[0] + up[2] * h[1]) if v is None else up[1]
         fv = (forward[0] * h[0] + forward[2] * h[1]) if v is None else forward[1]
-        return (bx * rv - by * uv) / f, ((cx0 - cx) * rv + (cy - cy0) * uv) / f + fv
+        rv = rv * pa  # / fx = * pixel_aspect / fy
+        return (bx * rv - by * uv) / fy, ((cx0 - cx) * rv + (cy - cy0) * uv) / fy + fv
 
     lo = jnp.int32(0)
     hi = jnp.minimum(jnp.int32(rows), jnp.ceil(size_a - 0.5).astype(jnp.int32))
@@ -467,18 +469,6 @@ def _unrank(rank, n, m):
     return jnp.where(rank < n - m, m + rank, m - 1 - (rank - (n - m)))
 
 
-def _slope_to_row(cam: Camera, vertical, h, s, right, up, forward, f):
-    """Ray-buffer coordinate of the in-plane direction with slope s (Eq. 4.5)."""
-    hx, hz = h[0], h[1]
-    cxv = right[0] * hx + right[2] * hz + s * right[1]
-    cyv = up[0] * hx + up[2] * hz + s * up[1]
-    czv = forward[0] * hx + forward[2] * hz + s * forward[1]
-    czv = jnp.maximum(czv, 1e-9)
-    x = 0.5 * cam.width + f * cxv / czv
-    y = 0.5 * cam.height - f * cyv / czv
-    return jnp.where(vertical, y, x)
-
-
 ELEMENT_WORDS = 5
 """int32 words per drawn element in a plane's list (:func:`_pack_elements`)."""
 _IZ_BITS = 26
@@ -540,7 +530,7 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     s_idx = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
     vertical = s_idx < 2
     right, up, forward = camera_basis(cam)
-    f = focal_length(cam)
+    fx, fy = focal_lengths(cam)
     eye = cam.position
     ex, ez = eye[0], eye[2]
     hx, hz = h[0], h[1]
@@ -551,11 +541,11 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     hr = right[0] * hx + right[2] * hz
     hu = up[0] * hx + up[2] * hz
     hf = forward[0] * hx + forward[2] * hz
-    p_num = jnp.where(vertical, 0.5 * cam.height * hf - f * hu, 0.5 * cam.width * hf + f * hr)
+    p_num = jnp.where(vertical, 0.5 * cam.height * hf - fy * hu, 0.5 * cam.width * hf + fx * hr)
     q_num = jnp.where(
         vertical,
-        0.5 * cam.height * forward[1] - f * up[1],
-        0.5 * cam.width * forward[1] + f * right[1],
+        0.5 * cam.height * forward[1] - fy * up[1],
+        0.5 * cam.width * forward[1] + fx * right[1],
     )
     # Entry into the map's x-z box (2-D slab test).
     X0, Z0 = float(rle.shape[0]), float(rle.shape[2])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -19,6 +20,8 @@ from jaxgfx.camera import (
     pixel_rays,
     project,
     stack_cameras,
+    supersampled,
+    validate_camera,
     view_matrix,
 )
 
@@ -57,20 +60,22 @@ def test_conventions_yaw_pitch():
     assert float(xy[1]) < 24 and float(depth) == pytest.approx(5.0)
 
 
+@pytest.mark.parametrize("aa", [(1, 1), (2, 1)])
 @pytest.mark.parametrize("kw", CAMS)
-def test_pixel_rays_project_back_to_pixel_centres(kw):
-    cam = camera_from_degrees(width=16, height=12, **kw)
+def test_pixel_rays_project_back_to_pixel_centres(kw, aa):
+    cam = supersampled(camera_from_degrees(width=8, height=12, **kw), aa)
     o, d = pixel_rays(cam, normalize=False)
     pts = o + 7.0 * d  # depth 7 along the view axis when not normalised
     xy, depth = project(cam, pts.reshape(-1, 3))
-    jj, ii = np.meshgrid(np.arange(12), np.arange(16), indexing="ij")
+    jj, ii = np.meshgrid(np.arange(12), np.arange(8 * aa[0]), indexing="ij")
     expect = np.stack([ii + 0.5, jj + 0.5], -1).reshape(-1, 2)
     np.testing.assert_allclose(xy, expect, atol=1e-3)
     np.testing.assert_allclose(depth, 7.0, rtol=1e-5)
 
 
-def test_camera_matrix_matches_project():
-    cam = camera_from_degrees([1, 2, 3], 20, -10, 5, 50, 40, 30, 0.1, 100.0)
+@pytest.mark.parametrize("aa", [(1, 1), (2, 1)])
+def test_camera_matrix_matches_project(aa):
+    cam = supersampled(camera_from_degrees([1, 2, 3], 20, -10, 5, 50, 40, 30, 0.1, 100.0), aa)
     pts = jnp.array([[2.0, 1.5, 9.0], [0.0, 2.0, 6.0]])
     clip = jnp.concatenate([pts, jnp.ones((2, 1))], 1) @ camera_matrix(cam).T
     ndc = clip[:, :3] / clip[:, 3:]
@@ -81,6 +86,26 @@ def test_camera_matrix_matches_project():
     np.testing.assert_allclose(clip[:, 3], depth, rtol=1e-5)
     v = view_matrix(cam)
     np.testing.assert_allclose(v[:3, :3] @ v[:3, :3].T, np.eye(3), atol=TOL)
+
+
+@pytest.mark.parametrize("aa", [(2, 1), (2, 2), (3, 2)])
+def test_supersampled_sees_the_same_view(aa):
+    # The finer grid covers the same view: every point lands on the same spot
+    # in units of the original pixels, so antialias() gives back that image.
+    cam = camera_from_degrees([1, 2, 3], 20, -10, 5, 50, 40, 30)
+    fine = supersampled(cam, aa)
+    assert (fine.width, fine.height) == (40 * aa[0], 30 * aa[1])
+    assert fine.pixel_aspect == pytest.approx(aa[1] / aa[0])
+    pts = jnp.array([[2.0, 1.5, 9.0], [0.0, 2.0, 6.0], [1.0, 2.0, 3.5]])
+    xy, d = project(cam, pts)
+    xy_f, d_f = project(fine, pts)
+    np.testing.assert_allclose(xy_f / np.asarray(aa, np.float32), xy, atol=1e-3)
+    np.testing.assert_allclose(d_f, d, rtol=1e-6)
+    # Corner rays of the fine grid sit a fine half-pixel inside the original corners.
+    _, dirs = pixel_rays(fine, normalize=False)
+    xy_c, _ = project(fine, fine.position + dirs[0, 0])
+    np.testing.assert_allclose(xy_c, [0.5, 0.5], atol=1e-3)
+    assert supersampled(fine, (1, 1)) == fine
 
 
 def test_look_at_straight_down_and_up_finite():
@@ -126,19 +151,35 @@ def test_camera_is_pytree_with_static_resolution():
         (dict(near=2.0, far=1.0), "far"),
         (dict(position=[0, math.nan, 0]), "position"),
         (dict(position=[0, 0]), "position"),
+        (dict(pixel_aspect=0.0), "pixel_aspect"),
+        (dict(pixel_aspect=math.inf), "pixel_aspect"),
+        (dict(pixel_aspect="wide"), "pixel_aspect"),
     ],
 )
 def test_bad_camera_input(kw, match):
     args = dict(position=[0, 0, 0])
     args.update(kw)
+    pa = args.pop("pixel_aspect", None)
     with pytest.raises((ValueError, TypeError), match=match):
-        camera_from_degrees(**args)
+        cam = camera_from_degrees(**args)
+        if pa is not None:
+            validate_camera(dataclasses.replace(cam, pixel_aspect=pa))
+
+
+@pytest.mark.parametrize("factor", [(0, 1), (2, -1), (2,), "2x1"])
+def test_bad_supersample_factor(factor):
+    with pytest.raises((ValueError, TypeError), match="factor"):
+        supersampled(camera_from_degrees([0, 0, 0], width=4, height=4), factor)
 
 
 def test_stack_rejects_mixed_resolution():
-    with pytest.raises(ValueError, match="resolution"):
+    with pytest.raises(ValueError, match="width, height, pixel_aspect"):
         stack_cameras(
             [camera_from_degrees([0, 0, 0], width=4), camera_from_degrees([0, 0, 0], width=5)]
         )
+    cam = camera_from_degrees([0, 0, 0], width=4, height=2)
+    other = dataclasses.replace(supersampled(cam, (2, 1)), width=4)
+    with pytest.raises(ValueError, match="pixel_aspect"):
+        stack_cameras([cam, other])
     with pytest.raises(ValueError, match="distinct"):
         look_at([1, 1, 1], [1, 1, 1])

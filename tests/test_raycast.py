@@ -11,7 +11,7 @@ import pytest
 
 from jaxgfx import raycast as RC
 from jaxgfx import voxels as V
-from jaxgfx.camera import camera_from_degrees, look_at, stack_cameras
+from jaxgfx.camera import camera_from_degrees, look_at, project, stack_cameras, supersampled
 
 W, H = 96, 72
 # Share of pixels (where either renderer hits) that must agree.
@@ -117,7 +117,6 @@ def test_vanishing_point_cases():
     cam = camera_from_degrees([0, 5, 0], 30, -20, 0, 60, W, H)
     vp = np.asarray(RC.vanishing_point(cam))
     # The screen image of the downward vertical through the eye (Eq. 4.2, 4.3).
-    from jaxgfx.camera import project
 
     xy, depth = project(cam, jnp.array([0.0, -1.0, 0.0]))
     assert depth > 0
@@ -160,6 +159,29 @@ def test_matches_reference_dda(scene, name, cam):
         assert int(o.stats["buffer_overflow"]) == 0
         st = {k: int(v) for k, v in o.stats.items()}
         assert st["elements_rendered"] <= st["elements_processed"] <= st["elements_total"]
+
+
+def test_half_width_pixels_match_reference(scene):
+    # The thesis's 2x1 AA frame: the same view on pixels half as wide.  Every
+    # step of the per-plane method (vp, segments, plane extents, Eq. 4.5 rows,
+    # the warp) must use the horizontal focal length; the reference DDA
+    # shoots its rays through pixel_rays.
+    _, rle, occ, col = scene
+    for name, cam in CAMERAS[:3]:
+        fine = supersampled(dataclasses.replace(cam, width=W // 2), (2, 1))
+        assert fine.shape == (H, W) and fine.pixel_aspect == 0.5
+        xy, _ = project(fine, fine.position + jnp.array([0.0, -1.0, 0.0]))
+        vp = np.asarray(RC.vanishing_point(fine))
+        if abs(vp[2]) > 1e-3:
+            np.testing.assert_allclose(vp[:2] / vp[2], np.asarray(xy), rtol=1e-4, atol=1e-3)
+        ref, _ = reference(occ, col, fine)
+        for kw, agree in (({}, DEPTH_AGREE), (THESIS, DEPTH_AGREE_PLAIN)):
+            out = render(rle, fine, **kw)
+            d_ok, c_ok, n = _agreement(out, ref)
+            assert n > 800, name
+            assert d_ok >= agree, f"{name} {kw}: depth agreement {d_ok:.4f}"
+            if not kw:
+                assert c_ok >= COLOR_AGREE, f"{name}: colour agreement {c_ok:.4f}"
 
 
 def test_vmap_over_cameras_and_no_recompile(scene):

@@ -320,6 +320,19 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     depth = np.load(dep)
     assert depth.shape == (16, 24) and np.isfinite(depth).any() and not np.isnan(depth).any()
     assert png.stat().st_size > 0
+    # 2x1 AA: the same view on pixels half as wide, averaged back to --size.
+    args = parser.parse_args(argv + ["--aa", "2x1", "--reference"])
+    assert args.func(args) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["aa"] == "2x1"
+    d_aa = np.load(dep)
+    assert d_aa.shape == (16, 24)
+    # Same view: the hits overlap the 1x1 frame's and lie at the same depth.
+    hits, hits_aa = np.isfinite(depth), np.isfinite(d_aa)
+    both = hits & hits_aa
+    assert hits.sum() > 5 and both.sum() >= 0.7 * hits.sum() and hits_aa.sum() <= 2 * hits.sum()
+    assert np.median(np.abs(d_aa[both] - depth[both])) < 1.0
+    with pytest.raises(SystemExit):
+        parser.parse_args(argv + ["--aa", "3x1"])
     # Resolution is for meshes and trees only; it must be positive.
     args = parser.parse_args(["voxelize", "x.kv6", "--resolution", "8", "--out", "o.npz"])
     with pytest.raises(ValueError, match="resolution"):
