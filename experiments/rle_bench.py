@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx import post
 from jaxgfx import raycast as RC
 from jaxgfx import voxels as V
 from jaxgfx.camera import look_at, supersampled
@@ -211,11 +212,6 @@ def timed(fn, cams, repeats=1):
     return first, steady(times), out
 
 
-def aa_2x1(img):
-    """2x1 anti-aliasing: average horizontal pixel pairs (4.5.6.2)."""
-    return 0.5 * (img[:, 0::2] + img[:, 1::2])
-
-
 def agreement(out_depth, out_color, ref_depth, ref_color):
     d1, d2 = np.asarray(out_depth), np.asarray(ref_depth)
     h1, h2 = np.isfinite(d1), np.isfinite(d2)
@@ -265,7 +261,7 @@ def run(args):
             f_ours = lambda c, r=rle: render(r, c)  # noqa: E731
             first, ours, out = timed(f_ours, cams, reps)
             stats = {k: int(v) for k, v in out.stats.items()}
-            aa = aa_2x1(out.color)
+            aa, _ = post.antialias(out.color, out.depth, (2, 1))
             assert aa.shape == (h, w, 3)
             row = dict(
                 scene=name,
