@@ -352,6 +352,14 @@ def run(args):
         g_occ = np.concatenate([np.ones_like(occ[:, :1]), occ], axis=1)
         g_col = np.concatenate([np.broadcast_to(np.uint8([90, 120, 60]), col[:, :1].shape), col], 1)
         variants.append(("trees on ground tiles", V.dense_to_voxels(g_occ, g_col, surface=False)))
+        # The thesis's 1 vs 1600 test used a big object (1024^3).  The
+        # bunny at R = 256, its x / z padded to multiples of 32 so that six
+        # mip levels tile, asks whether a bigger object closes the gap.
+        bunny = next((v for name, v, *_ in scenes if name == "bunny"), None)
+        if bunny is not None:
+            pad = [-(-n // 32) * 32 for n in bunny.shape]
+            padded = V.Voxels(bunny.coords, bunny.colors, (pad[0], bunny.shape[1], pad[2]))
+            variants.append((f"bunnies (R={max(bunny.shape)})", padded))
     for label, obj in variants:
         # The full mip chain, as in the thesis (4.4.7), as far as instances allow
         # (a tile's x / z size must stay divisible by 2 ** (levels - 1)).
