@@ -36,6 +36,7 @@ from jaxgfx.camera import orbit_cameras as orbit_cameras
 from jaxgfx.camera import pixel_rays as pixel_rays
 from jaxgfx.camera import project as project
 from jaxgfx.camera import projection_matrix as projection_matrix
+from jaxgfx.camera import screen_to_camera as screen_to_camera
 from jaxgfx.camera import stack_cameras as stack_cameras
 from jaxgfx.camera import supersampled as supersampled
 from jaxgfx.camera import validate_camera as validate_camera

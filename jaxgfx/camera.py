@@ -40,6 +40,7 @@ __all__ = [
     "supersampled",
     "world_to_camera",
     "camera_to_screen",
+    "screen_to_camera",
     "project",
     "pixel_rays",
     "camera_matrix",
@@ -259,6 +260,18 @@ def camera_to_screen(cam: Camera, p_cam: jax.Array) -> jax.Array:
     return jnp.stack([sx, sy], axis=-1)
 
 
+def screen_to_camera(cam: Camera, sx, sy) -> tuple[jax.Array, jax.Array]:
+    """Inverse of :func:`camera_to_screen` at depth 1.
+
+    Screen x coordinates ``sx`` and y coordinates ``sy`` (any shapes, not
+    broadcast against each other) map to the camera-space ``x / z`` and
+    ``y / z`` of their rays.  Every pixel-ray construction uses this, so
+    ``pixel_aspect`` is honoured in one place.
+    """
+    fx, fy = focal_lengths(cam)
+    return (sx - 0.5 * cam.width) / fx, (0.5 * cam.height - sy) / fy
+
+
 def project(cam: Camera, points: jax.Array) -> tuple[jax.Array, jax.Array]:
     """World points (..., 3) -> (pixel xy (..., 2), depth (...)).
 
@@ -280,9 +293,11 @@ def pixel_rays(cam: Camera, normalize: bool = True) -> tuple[jax.Array, jax.Arra
     Returns:
         ``(origins, directions)``, each (H, W, 3) in world space.
     """
-    fx, fy = focal_lengths(cam)
-    xs = (jnp.arange(cam.width, dtype=jnp.float32) + 0.5 - 0.5 * cam.width) / fx
-    ys = (0.5 * cam.height - jnp.arange(cam.height, dtype=jnp.float32) - 0.5) / fy
+    xs, ys = screen_to_camera(
+        cam,
+        jnp.arange(cam.width, dtype=jnp.float32) + 0.5,
+        jnp.arange(cam.height, dtype=jnp.float32) + 0.5,
+    )
     gx, gy = jnp.meshgrid(xs, ys)
     right, up, forward = camera_basis(cam)
     d = gx[..., None] * right + gy[..., None] * up + forward

@@ -19,7 +19,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxgfx.camera import Camera, focal_lengths
+from jaxgfx.camera import Camera, screen_to_camera
 
 __all__ = [
     "antialias",
@@ -152,13 +152,12 @@ def screen_space_normals(cam: Camera, depth, *, key, samples: int = 16, scale: f
         (H, W, 3) unit normals; (0, 0, -1) where the depth is empty.
     """
     H, W, ys, xs, finite, z, rad = _screen_samples(depth, scale, 8.0)
-    fx, fy = focal_lengths(cam)
     ox, oy = _offsets(key, samples, H, W)
-    cx, cy = 0.5 * W, 0.5 * H
 
     def point(zz, x, y):
         # Camera-space point of pixel centre (x, y) at depth zz.
-        return jnp.stack([zz * (x + 0.5 - cx) / fx, zz * (cy - y - 0.5) / fy, zz], axis=-1)
+        rx, ry = screen_to_camera(cam, x + 0.5, y + 0.5)
+        return jnp.stack([zz * rx, zz * ry, zz], axis=-1)
 
     p0 = point(z, xs, ys)
     tx = jnp.zeros_like(p0)

@@ -34,7 +34,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx.camera import Camera, focal_lengths, validate_camera, world_to_camera
+from jaxgfx.camera import (
+    Camera,
+    focal_lengths,
+    screen_to_camera,
+    validate_camera,
+    world_to_camera,
+)
 
 __all__ = [
     "RasterOutput",
@@ -382,9 +388,9 @@ def resolve(
         ``(depth (H,W), tri_id (H,W), bary (H,W,3))``.
     """
     h, w = cam.height, cam.width
-    flx, fly = focal_lengths(cam)
-    xs = (jnp.arange(w, dtype=jnp.float32) + 0.5 - 0.5 * w) / flx
-    ys = (0.5 * h - jnp.arange(h, dtype=jnp.float32) - 0.5) / fly
+    xs, ys = screen_to_camera(
+        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, jnp.arange(h, dtype=jnp.float32) + 0.5
+    )
     gx, gy = jnp.meshgrid(xs, ys)
     ray = jnp.stack([gx, gy, jnp.ones_like(gx)], axis=-1).reshape(-1, 3)
     hit = face_id != _NO_TRI

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx.camera import Camera, camera_basis, focal_lengths, pixel_rays
+from jaxgfx.camera import Camera, camera_basis, focal_lengths, pixel_rays, screen_to_camera
 
 __all__ = [
     "RenderOutput",
@@ -227,8 +227,8 @@ def screen_segments(cam: Camera, vp_h: jax.Array, *, num_planes: int, oversample
 def _screen_dir(cam: Camera, x, y):
     """World direction (3,) of screen point (x, y), scaled to camera z = 1."""
     right, up, forward = camera_basis(cam)
-    fx, fy = focal_lengths(cam)
-    return ((x - 0.5 * cam.width) / fx) * right + ((0.5 * cam.height - y) / fy) * up + forward
+    cx, cy = screen_to_camera(cam, x, y)
+    return cx * right + cy * up + forward
 
 
 def _plane_u(seg: Segments, plane):

@@ -15,10 +15,12 @@ from jaxgfx.camera import (
     camera_basis,
     camera_from_degrees,
     camera_matrix,
+    camera_to_screen,
     look_at,
     orbit_cameras,
     pixel_rays,
     project,
+    screen_to_camera,
     stack_cameras,
     supersampled,
     validate_camera,
@@ -86,6 +88,15 @@ def test_camera_matrix_matches_project(aa):
     np.testing.assert_allclose(clip[:, 3], depth, rtol=1e-5)
     v = view_matrix(cam)
     np.testing.assert_allclose(v[:3, :3] @ v[:3, :3].T, np.eye(3), atol=TOL)
+
+
+@pytest.mark.parametrize("aa", [(1, 1), (2, 1)])
+def test_screen_to_camera_inverts_camera_to_screen(aa):
+    cam = supersampled(camera_from_degrees([0, 0, 0], 0, 0, 0, 50, 40, 30), aa)
+    p = jnp.array([[0.3, -0.2, 2.0], [-1.0, 0.5, 4.0], [0.0, 0.0, 1.0]])
+    sx, sy = np.asarray(camera_to_screen(cam, p)).T
+    rx, ry = screen_to_camera(cam, sx, sy)
+    np.testing.assert_allclose(np.stack([rx, ry], -1), p[:, :2] / p[:, 2:], atol=1e-5)
 
 
 @pytest.mark.parametrize("aa", [(2, 1), (2, 2), (3, 2)])
