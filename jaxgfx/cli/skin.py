@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 from pathlib import Path
 
-__all__ = ["register", "cmd_skin"]
+from jaxgfx.cli.args import CliError, parse_size
+
+__all__ = ["register", "run"]
 
 
 def register(subparsers) -> None:
@@ -25,12 +26,12 @@ def register(subparsers) -> None:
     )
     p.add_argument("--bend", type=float, default=90.0, help="elbow bend in degrees")
     p.add_argument("--twist", type=float, default=0.0, help="twist in degrees")
-    p.add_argument("--size", default="320x320", help="image size WxH")
+    p.add_argument("--size", type=parse_size, default=(320, 320), help="WxH (default 320x320)")
     p.add_argument("--out", default="skin_out", help="output directory")
-    p.set_defaults(func=cmd_skin)
+    p.set_defaults(func=run)
 
 
-def cmd_skin(args) -> int:
+def run(args) -> int:
     """Handler: writes ``skin.png`` and prints the deformation time."""
     import jax
     import jax.numpy as jnp
@@ -42,12 +43,9 @@ def cmd_skin(args) -> int:
     from jaxgfx.io import save_png
     from jaxgfx.raster import rasterize
 
-    try:
-        w, h = (int(v) for v in str(args.size).lower().split("x"))
-    except ValueError:
-        raise SystemExit(f"--size must look like 320x320, got {args.size!r}") from None
-    if w <= 0 or h <= 0 or not (math.isfinite(args.bend) and math.isfinite(args.twist)):
-        raise SystemExit("--size must be positive and --bend/--twist finite")
+    w, h = args.size
+    if not (math.isfinite(args.bend) and math.isfinite(args.twist)):
+        raise CliError(f"--bend and --twist must be finite, got {args.bend}, {args.twist}")
     v, n, faces = skin.limb_mesh(24, 41, 0.22, 2.0)
     rig = skin.make_rig(
         np.array([[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.0]]], np.float32),
@@ -92,10 +90,3 @@ def cmd_skin(args) -> int:
         f"steady {steady * 1e3:.3f} ms; wrote {path}"
     )
     return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    parser = argparse.ArgumentParser()
-    register(parser.add_subparsers())
-    a = parser.parse_args()
-    raise SystemExit(a.func(a))

@@ -2,36 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
 
-__all__ = ["register", "cmd_terrain", "make_terrain"]
+from jaxgfx.cli.args import parse_floats, parse_ints, parse_size
+
+__all__ = ["register", "run", "make_terrain"]
 
 FUNCTIONS = ("csg", "xor", "saw", "sin", "heightmap:PATH")
-
-
-def _ints3(text: str) -> tuple[int, int, int]:
-    try:
-        vals = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected 3 comma-separated integers, got {text!r}"
-        ) from None
-    if len(vals) != 3:
-        raise argparse.ArgumentTypeError(f"expected 3 comma-separated integers, got {text!r}")
-    return vals
-
-
-def _angles(text: str) -> tuple[float, float]:
-    try:
-        vals = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected yaw,pitch in degrees, got {text!r}") from None
-    if len(vals) != 2:
-        raise argparse.ArgumentTypeError(f"expected yaw,pitch in degrees, got {text!r}")
-    return vals
 
 
 def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = None, cell: int = 1):
@@ -65,7 +43,7 @@ def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = Non
     raise ValueError(f"--function must be one of {', '.join(FUNCTIONS)}, got {spec!r}")
 
 
-def cmd_terrain(args) -> int:
+def run(args) -> int:
     import jax
     import numpy as np
 
@@ -75,16 +53,12 @@ def cmd_terrain(args) -> int:
     from jaxgfx.io import save_mesh, save_png
     from jaxgfx.raster import rasterize
 
-    try:
-        terrain = make_terrain(
-            args.function, seed=args.seed, vertical_scale=args.vertical_scale, cell=args.cell
-        )
-        pipe = T.ClipBoxPipeline(
-            terrain, size=args.resolution, levels=args.levels, smoothing=args.smoothing
-        )
-    except (ValueError, TypeError, FileNotFoundError) as err:
-        print(f"jaxgfx terrain: error: {err}", file=sys.stderr)
-        return 2
+    terrain = make_terrain(
+        args.function, seed=args.seed, vertical_scale=args.vertical_scale, cell=args.cell
+    )
+    pipe = T.ClipBoxPipeline(
+        terrain, size=args.resolution, levels=args.levels, smoothing=args.smoothing
+    )
     w, h = args.size
     viewer = np.asarray(args.viewer, np.int64)
     t0 = time.perf_counter()
@@ -116,8 +90,6 @@ def cmd_terrain(args) -> int:
 
 def register(subparsers) -> None:
     """Adds ``jaxgfx terrain`` to the CLI's subparsers."""
-    from jaxgfx.cli import parse_size
-
     p = subparsers.add_parser(
         "terrain",
         help="procedural volumetric terrain with nested Clip-Boxes (thesis ch. 3)",
@@ -127,13 +99,23 @@ def register(subparsers) -> None:
         ),
     )
     p.add_argument("--function", default="csg", help=f"one of {', '.join(FUNCTIONS)}")
-    p.add_argument("--viewer", type=_ints3, default=(0, 24, 0), help="x,y,z integer voxels (y up)")
+    p.add_argument(
+        "--viewer",
+        type=parse_ints(3, "x,y,z"),
+        default=(0, 24, 0),
+        help="x,y,z integer voxels (y up)",
+    )
     p.add_argument(
         "--resolution", type=int, default=64, help="N voxels per box edge (multiple of 8)"
     )
     p.add_argument("--levels", type=int, default=5, help="number of nested boxes L >= 1")
     p.add_argument("--out", default="terrain.png", help="output PNG")
-    p.add_argument("--camera", type=_angles, default=(0.0, -15.0), help="yaw,pitch in degrees")
+    p.add_argument(
+        "--camera",
+        type=parse_floats(2, "yaw,pitch"),
+        default=(0.0, -15.0),
+        help="yaw,pitch in degrees",
+    )
     p.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
     p.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees")
     p.add_argument("--mesh", default=None, help="export the mesh (.ply, .glb, .obj)")
@@ -142,4 +124,4 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="key for the random CSG terrain")
     p.add_argument("--vertical-scale", type=float, default=None, help="heightmap voxels per unit")
     p.add_argument("--cell", type=int, default=1, help="heightmap voxels per pixel")
-    p.set_defaults(func=cmd_terrain)
+    p.set_defaults(func=run)

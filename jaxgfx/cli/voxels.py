@@ -9,12 +9,13 @@ axis in voxel units, +inf where nothing was hit.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
-__all__ = ["register", "cmd_voxelize", "cmd_render_voxels", "load_input"]
+from jaxgfx.cli.args import parse_aa, parse_floats, parse_size, positive_int
+
+__all__ = ["register", "run_voxelize", "run_render_voxels", "load_input"]
 
 _CONVENTIONS = (
     "Scene coordinates are voxel units, y up; a voxelized mesh of resolution R occupies "
@@ -61,7 +62,7 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
     return V.voxelize_mesh(mesh.vertices, mesh.faces, resolution, vertex_colors=colors)
 
 
-def cmd_voxelize(args) -> int:
+def run_voxelize(args) -> int:
     """Voxelizes an input and prints one JSON line with the memory accounting."""
     from jaxgfx import voxels as V
 
@@ -88,7 +89,7 @@ def cmd_voxelize(args) -> int:
     return 0
 
 
-def cmd_render_voxels(args) -> int:
+def run_render_voxels(args) -> int:
     """Renders a saved voxel scene to a PNG (and optionally a depth .npy)."""
     import jax
     import jax.numpy as jnp
@@ -146,35 +147,6 @@ def cmd_render_voxels(args) -> int:
     return 0
 
 
-def _camera(text: str):
-    from jaxgfx.cli import parse_floats
-
-    return parse_floats(5)(text)
-
-
-def _size(text: str):
-    from jaxgfx.cli import parse_size
-
-    return parse_size(text)
-
-
-def _aa(text: str) -> tuple[int, int]:
-    table = {"1x1": (1, 1), "2x1": (2, 1), "2x2": (2, 2)}
-    if text not in table:
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(table)}, got {text!r}")
-    return table[text]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {v}")
-    return v
-
-
 def register(subparsers) -> None:
     """Adds ``voxelize`` and ``render-voxels`` to an argparse subparsers object."""
     p = subparsers.add_parser(
@@ -185,14 +157,14 @@ def register(subparsers) -> None:
     )
     p.add_argument("input", help="mesh (.ply/.obj/...), volume header (.mhd/.nhdr), "
                    ".vxl, .kv6, or the word 'tree'")  # fmt: skip
-    p.add_argument("--resolution", type=_positive_int, default=None,
+    p.add_argument("--resolution", type=positive_int, default=None,
                    help="grid size of the longest axis (meshes and trees only)")  # fmt: skip
     p.add_argument("--iso", type=float, default=None,
                    help="iso threshold for volumes (default: middle of the range)")  # fmt: skip
-    p.add_argument("--levels", type=_positive_int, default=1, help="mip levels to encode")
+    p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
     p.add_argument("--out", required=True, help="output scene .npz")
-    p.set_defaults(func=cmd_voxelize)
+    p.set_defaults(func=run_voxelize)
 
     r = subparsers.add_parser(
         "render-voxels",
@@ -204,11 +176,13 @@ def register(subparsers) -> None:
         "the view axis in voxel units, +inf where nothing was hit.",
     )
     r.add_argument("scene", help="scene .npz from 'jaxgfx voxelize'")
-    r.add_argument("--camera", type=_camera, required=True, help="x,y,z,yaw,pitch")
+    r.add_argument(
+        "--camera", type=parse_floats(5, "x,y,z,yaw,pitch"), required=True, help="x,y,z,yaw,pitch"
+    )
     r.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees")
-    r.add_argument("--size", type=_size, default=(640, 480), help="WxH")
+    r.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
     r.add_argument("--far", type=float, default=1e5, help="maximal view distance (voxels)")
-    r.add_argument("--levels", type=_positive_int, default=1, help="mip levels (LOD)")
+    r.add_argument("--levels", type=positive_int, default=1, help="mip levels (LOD)")
     r.add_argument("--lod", type=float, default=0.0,
                    help="distance where mip level 1 starts, level l at lod * 2^(l-1) "
                    "(0: level 0 only)")  # fmt: skip
@@ -220,7 +194,7 @@ def register(subparsers) -> None:
     r.add_argument("--thesis", action="store_true",
                    help="the thesis method alone: 1 plane per border pixel, nearest "
                    "texel, no re-walk")  # fmt: skip
-    r.add_argument("--aa", type=_aa, default=(1, 1),
+    r.add_argument("--aa", type=parse_aa, default=(1, 1),
                    help="anti-aliasing 1x1 (off), 2x1 (thesis: pixels half as wide) or 2x2; "
                    "the frame is rendered at the finer grid and averaged back to --size, "
                    "the depth is the nearest sample")  # fmt: skip
@@ -228,4 +202,4 @@ def register(subparsers) -> None:
     r.add_argument("--depth", default=None, help="optional depth .npy")
     r.add_argument("--reference", action="store_true",
                    help="use the per-pixel 3-D DDA reference renderer instead")  # fmt: skip
-    r.set_defaults(func=cmd_render_voxels)
+    r.set_defaults(func=run_render_voxels)

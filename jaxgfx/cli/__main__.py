@@ -1,0 +1,5 @@
+import sys
+
+from jaxgfx.cli import main
+
+sys.exit(main())
