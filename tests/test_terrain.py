@@ -394,7 +394,7 @@ def test_mesh_overflow_is_reported_not_hidden():
     vox = np.indices((N, N, N)).sum(0) % 2 == 0  # checkerboard: every face is a quad
     box = T.ClipBox(jnp.zeros(3, jnp.int32), jnp.asarray(vox), jnp.asarray(0), N)
     m = mesh_jit(box, max_quads=1000)
-    occ = np.asarray(T._seam_occupancy(jnp.asarray(vox)))
+    occ = np.asarray(T.seam_occupancy(jnp.asarray(vox)))
     pairs = sum(int(np.sum(np.diff(occ.astype(np.int8), axis=d) != 0)) for d in range(3))
     assert bool(m.overflow) and int(m.num_quads) == pairs > 1000
 
@@ -517,7 +517,7 @@ def test_nested_pipeline_moves_and_stays_exact(pipeline):
             assert 0.0 <= s["reused"] <= 1.0
         origins = st.origins()
         for lvl in range(2):
-            assert T._nested_ok(origins[lvl], origins[lvl + 1], lvl, N)
+            assert T.is_nested(origins[lvl], origins[lvl + 1], lvl, N)
     assert moved[0] > moved[1] >= moved[2]  # inner boxes follow the viewer more often
     for lvl, b in enumerate(st.boxes):  # cached + differential == sampled from scratch
         fresh = clipbox_jit(pipeline.terrain, b.origin, lvl, size=N)
