@@ -1,0 +1,189 @@
+"""Geometry post-processing (thesis 3.4.7, Table 3.1).
+
+Before meshing, the 2x2 pattern filter removes diagonal voxel pairs that smoothing
+would pinch (Fig. 3.14); after meshing, vertex averaging smooths the mesh (Fig. 3.9),
+area-weighted normals shade it, and triangle subdivision with random midpoint
+displacement adds fractal detail to the innermost levels (Fig. 3.12-3.13).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxgfx._src.terrain.functions import _I32
+from jaxgfx._src.terrain.meshing import ClipBoxMesh
+
+__all__ = ["pattern_filter", "smooth_mesh", "mesh_normals", "SubdividedMesh", "subdivide_mesh"]
+
+
+# --------------------------------------------------------------------------------------
+# Pattern filter on voxels (Fig. 3.14)
+# --------------------------------------------------------------------------------------
+
+
+def pattern_filter(voxels: jax.Array) -> jax.Array:
+    """The 2x2 pattern filter (3.4.7, Fig. 3.14) on a (N, N, N) bool volume.
+
+    A 2x2 window in any axis-aligned plane holding only a diagonal pair (solid
+    voxels touching at an edge only) makes smoothing pull the surface into a
+    pinch; the pattern is replaced by the filled window, so the air corners of
+    every such window become solid.
+    """
+    v = voxels
+    fill = jnp.zeros_like(v)
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+
+        def win(da, db, a=a, b=b):
+            s = [slice(None)] * 3
+            s[a] = slice(da, v.shape[a] - 1 + da)
+            s[b] = slice(db, v.shape[b] - 1 + db)
+            return tuple(s)
+
+        p00, p10, p01, p11 = v[win(0, 0)], v[win(1, 0)], v[win(0, 1)], v[win(1, 1)]
+        diag1 = p00 & p11 & ~p10 & ~p01
+        diag2 = p10 & p01 & ~p00 & ~p11
+        hit = diag1 | diag2
+        for da, db in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            pad = [(0, 0)] * 3
+            pad[a] = (da, 1 - da)
+            pad[b] = (db, 1 - db)
+            fill = fill | jnp.pad(hit, pad)
+    return v | fill
+
+
+# --------------------------------------------------------------------------------------
+# Smoothing and normals (Fig. 3.9)
+# --------------------------------------------------------------------------------------
+
+
+def smooth_mesh(mesh: ClipBoxMesh, *, iterations: int = 4, weight: float = 0.5) -> ClipBoxMesh:
+    """Smoothing by vertex averaging over the vertex-to-vertex links (3.4.7, Fig. 3.9).
+
+    ``p <- p + weight (mean of linked neighbours - p)``, ``iterations`` times.  The
+    averaging works in world units, so the amount of smoothing grows linearly with
+    the level's voxel size, as in 3.5.3.
+
+    Args:
+        mesh: the mesh.
+        iterations: static number of averaging steps.
+        weight: step in [0, 1].
+    """
+    nb = mesh.neighbors
+    v = nb.shape[0]
+    has = nb >= 0
+    # Missing links read an appended zero row: six plain gathers and adds, no
+    # masked (V, 6, 3) reduction (8x faster on XLA:CPU).
+    idx = jnp.where(has, nb, v)
+    deg = jnp.sum(has, axis=-1, keepdims=True).astype(jnp.float32)
+    ok = deg > 0
+    step_w = weight * jnp.where(ok, 1.0 / jnp.where(ok, deg, 1.0), 0.0)
+
+    def step(p, _):
+        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
+        total = pe[idx[:, 0]]
+        for k in range(1, 6):
+            total = total + pe[idx[:, k]]
+        # p + weight (mean - p); a vertex without links keeps p (step_w = 0).
+        return p + step_w * (total - deg * p), None
+
+    p, _ = jax.lax.scan(step, mesh.vertices, None, length=iterations)
+    return dataclasses.replace(mesh, vertices=p)
+
+
+def mesh_normals(mesh: ClipBoxMesh) -> ClipBoxMesh:
+    """Area-weighted vertex normals ("surface normals" of Table 3.1)."""
+    p = mesh.vertices
+    a, b, c = p[mesh.faces[:, 0]], p[mesh.faces[:, 1]], p[mesh.faces[:, 2]]
+    fn = jnp.cross(b - a, c - a) * mesh.face_valid[:, None]
+    v = p.shape[0]
+    acc = sum(jax.ops.segment_sum(fn, mesh.faces[:, k], num_segments=v) for k in range(3))
+    n2 = jnp.sum(acc * acc, axis=-1, keepdims=True)
+    ok = n2 > 1e-20
+    nrm = jnp.where(ok, acc * jax.lax.rsqrt(jnp.where(ok, n2, 1.0)), 0.0)
+    return dataclasses.replace(mesh, normals=nrm)
+
+
+# --------------------------------------------------------------------------------------
+# Subdivision with random midpoint displacement (Fig. 3.12-3.13)
+# --------------------------------------------------------------------------------------
+
+
+class SubdividedMesh(NamedTuple):
+    """Triangle mesh after subdivision (3.4.7, Fig. 3.12); midpoints are per triangle edge."""
+
+    vertices: jax.Array  # (V + 3F, 3) float32, relative to the box origin
+    normals: jax.Array  # (V + 3F, 3) float32
+    faces: jax.Array  # (4F, 3) int32
+    face_valid: jax.Array  # (4F,) bool
+
+
+def _hash_uniform(p2: jax.Array, seed: jax.Array) -> jax.Array:
+    """Deterministic uniform [-1, 1) per integer point (uint32 mixing, wraps on purpose)."""
+    h = p2.astype(jnp.uint32) * jnp.asarray([0x8DA6B343, 0xD8163841, 0xCB1AB31F], jnp.uint32)
+    x = h[..., 0] ^ h[..., 1] ^ h[..., 2] ^ seed
+    for mul in (0x7FEB352D, 0x846CA68B):
+        x = (x ^ (x >> 16)) * jnp.uint32(mul)
+    x = x ^ (x >> 16)
+    return (x >> 8).astype(jnp.float32) * (2.0 / (1 << 24)) - 1.0
+
+
+def subdivide_mesh(
+    mesh: ClipBoxMesh, *, key: jax.Array, amplitude: float = 0.25, visible=None
+) -> SubdividedMesh:
+    """Triangle subdivision with random midpoint displacement ("fractal details", 3.4.7).
+
+    Each triangle becomes four through its edge midpoints; a midpoint moves along
+    the mean of its end normals by ``amplitude * 2^level * u``, ``u`` in [-1, 1)
+    hashed from the midpoint's exact integer world position and ``key``.  Both
+    triangles of an edge compute the same midpoint, so no cracks open; midpoints
+    of edges on the box boundary are not displaced so the seam to the outer level
+    stays on the outer edge (Fig. 3.13).
+
+    Args:
+        mesh: a mesh with normals (after :func:`mesh_normals`).
+        key: PRNG key for the displacement field.
+        amplitude: displacement in voxels of this level.
+        visible: optional (F,) mask (e.g. from :func:`visible_faces`).
+    Returns:
+        :class:`SubdividedMesh`.
+    """
+    f = mesh.faces
+    nf = f.shape[0]
+    nv = mesh.vertices.shape[0]
+    valid = mesh.face_valid if visible is None else visible
+    seed = jax.random.bits(key, (), jnp.uint32)
+    a_idx = f
+    b_idx = jnp.roll(f, -1, axis=1)  # edges (0,1), (1,2), (2,0)
+    pa, pb = mesh.vertices[a_idx], mesh.vertices[b_idx]
+    mid = 0.5 * (pa + pb)  # symmetric in a, b: both triangles of an edge agree
+    nrm = mesh.normals[a_idx] + mesh.normals[b_idx]
+    n2 = jnp.sum(nrm * nrm, -1, keepdims=True)
+    ok = n2 > 1e-12
+    nrm = jnp.where(ok, nrm * jax.lax.rsqrt(jnp.where(ok, n2, 1.0)), 0.0)
+    la, lb = mesh.lattice[a_idx], mesh.lattice[b_idx]
+    s = jnp.left_shift(1, mesh.level)
+    p2 = 2 * mesh.origin + (la + lb) * s  # doubled world coordinate of the midpoint
+    n = mesh.size
+    rim = jnp.any(((la == 0) & (lb == 0)) | ((la == n) & (lb == n)), axis=-1, keepdims=True)
+    u = _hash_uniform(p2, seed)[..., None]
+    mid = mid + jnp.where(rim, 0.0, amplitude * s.astype(jnp.float32) * u) * nrm
+    m = nv + 3 * jnp.arange(nf, dtype=_I32)[:, None] + jnp.arange(3, dtype=_I32)  # (F, 3)
+    faces = jnp.stack(
+        [
+            jnp.stack([f[:, 0], m[:, 0], m[:, 2]], -1),
+            jnp.stack([m[:, 0], f[:, 1], m[:, 1]], -1),
+            jnp.stack([m[:, 2], m[:, 1], f[:, 2]], -1),
+            jnp.stack([m[:, 0], m[:, 1], m[:, 2]], -1),
+        ],
+        axis=1,
+    ).reshape(-1, 3)
+    return SubdividedMesh(
+        vertices=jnp.concatenate([mesh.vertices, mid.reshape(-1, 3)]),
+        normals=jnp.concatenate([mesh.normals, nrm.reshape(-1, 3)]),
+        faces=jnp.where(jnp.repeat(valid, 4)[:, None], faces, 0),
+        face_valid=jnp.repeat(valid, 4),
+    )
