@@ -8,7 +8,7 @@ user has started JAX's multi-host runtime:
 
     import jax
     jax.distributed.initialize()  # on every host, before any other JAX call
-    # ... then call sweep() with identical arguments on every host.
+    # ... then call run_sweep() with identical arguments on every host.
 
 With several processes each host computes its shard; results are gathered
 with ``multihost_utils.process_allgather`` and written by process 0 only.
@@ -20,23 +20,27 @@ again with the same arguments skips the chunks already on disk.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxgfx._src.checks import check_int
 from jaxgfx.io import atomic_write, save_json
 
 __all__ = [
     "batch_size",
     "device_mesh",
+    "ShardedRenderer",
     "sharded_renderer",
-    "sweep",
+    "run_sweep",
     "load_sweep",
     "chunk_path",
 ]
@@ -71,7 +75,32 @@ def _slice(params, start: int, stop: int, pad_to: int):
     return jax.tree_util.tree_map(take, params)
 
 
-def sharded_renderer(render_fn: Callable, devices=None) -> Callable:
+@dataclasses.dataclass(frozen=True)
+class ShardedRenderer:
+    """``vmap(render_fn)`` jitted once and sharded over a 1-D device mesh.
+
+    Call it with a pytree whose leading axis (a multiple of the device count) is the
+    batch; it returns NumPy arrays, gathered from every process when running multi-host.
+    Calling it again with the same shapes does not recompile.
+
+    Attributes:
+        mesh: the 1-D device mesh (axis ``"batch"``).
+        jitted: the jitted, sharded ``vmap(render_fn)``.
+    """
+
+    mesh: Mesh
+    jitted: Any
+
+    def __call__(self, params):
+        n = batch_size(params)
+        if n % self.mesh.devices.size:
+            raise ValueError(
+                f"batch of {n} items is not a multiple of the {self.mesh.devices.size} devices"
+            )
+        return _run(self.jitted, params, self.mesh)
+
+
+def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
     """Jits ``vmap(render_fn)`` once, sharded over a 1-D device mesh.
 
     Args:
@@ -79,26 +108,13 @@ def sharded_renderer(render_fn: Callable, devices=None) -> Callable:
         devices: devices to shard over (default: all devices of all processes).
 
     Returns:
-        ``params -> outputs``: takes a pytree whose leading axis (a multiple of
-        the device count) is the batch, returns NumPy arrays (gathered from
-        every process when running multi-host).  Calling it again with the same
-        shapes does not recompile.
+        A :class:`ShardedRenderer`: ``params -> outputs`` for a batch of items.
     """
     mesh = device_mesh(devices)
     shard = NamedSharding(mesh, PartitionSpec("batch"))
-    fn = jax.jit(jax.vmap(render_fn), in_shardings=shard, out_shardings=shard)
-
-    def call(params):
-        n = batch_size(params)
-        if n % mesh.devices.size:
-            raise ValueError(
-                f"batch of {n} items is not a multiple of the {mesh.devices.size} devices"
-            )
-        return _run(fn, params, mesh)
-
-    call.mesh = mesh
-    call.jitted = fn
-    return call
+    return ShardedRenderer(
+        mesh, jax.jit(jax.vmap(render_fn), in_shardings=shard, out_shardings=shard)
+    )
 
 
 def _run(fn, params, mesh):
@@ -140,7 +156,7 @@ def _chunk_ok(path: Path, n_items: int) -> bool:
         return False
 
 
-def sweep(
+def run_sweep(
     render_fn: Callable,
     params,
     out_dir,
@@ -169,8 +185,7 @@ def sweep(
     Raises:
         ValueError: ``out_dir`` holds a different sweep (other params or chunking).
     """
-    if not isinstance(chunk_size, int) or chunk_size <= 0:
-        raise ValueError(f"chunk_size must be a positive int, got {chunk_size!r}")
+    chunk_size = check_int("chunk_size", chunk_size, low=1)
     n = batch_size(params)
     mesh = device_mesh(devices)
     ndev = mesh.devices.size

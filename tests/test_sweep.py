@@ -19,7 +19,7 @@ SHARDED = textwrap.dedent(
     from jaxgfx.camera import orbit_cameras
     from jaxgfx.compose import background, composite, to_uint8
     from jaxgfx.scene import mesh_pass, render_mesh_pass
-    from jaxgfx.sweep import load_sweep, sharded_renderer, sweep
+    from jaxgfx.sweep import load_sweep, run_sweep, sharded_renderer
 
     out = sys.argv[1]
     assert jax.device_count() == 4, jax.devices()
@@ -31,8 +31,8 @@ SHARDED = textwrap.dedent(
         fr = composite([background(cam), render_mesh_pass(cam, mp)])
         return {"color": fr.color, "depth": fr.depth}
 
-    s4 = sweep(one, cams, out + "/four", chunk_size=4, progress=False)
-    s1 = sweep(one, cams, out + "/one", chunk_size=4, devices=jax.devices()[:1], progress=False)
+    s4 = run_sweep(one, cams, out + "/four", chunk_size=4, progress=False)
+    s1 = run_sweep(one, cams, out + "/one", chunk_size=4, devices=jax.devices()[:1], progress=False)
     a, b = load_sweep(out + "/four"), load_sweep(out + "/one")
     direct = sharded_renderer(one)(jax.tree_util.tree_map(lambda x: x[:4], cams))
     fa, fb = np.isfinite(a["depth"]), np.isfinite(b["depth"])

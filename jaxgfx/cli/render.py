@@ -84,7 +84,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     from jaxgfx.compose import background, composite, to_uint8
     from jaxgfx.io import load_mesh, mesh_arrays, save_png
     from jaxgfx.scene import mesh_pass, render_mesh_pass
-    from jaxgfx.sweep import load_sweep, sweep
+    from jaxgfx.sweep import load_sweep, run_sweep
 
     if args.n <= 0:
         raise CliError(f"--n must be positive, got {args.n}")
@@ -108,7 +108,7 @@ def run_sweep(args: argparse.Namespace) -> int:
             if not p.exists():
                 save_png(p, img)
 
-    summary = sweep(render_one, cams, out / "chunks", args.chunk, on_chunk=write_frames)
+    summary = run_sweep(render_one, cams, out / "chunks", args.chunk, on_chunk=write_frames)
     allv = load_sweep(out / "chunks")
     save_png(out / "contact_sheet.png", contact_sheet(allv["color"], min(args.n, 6)))
     summary["frames"] = args.n
