@@ -153,13 +153,12 @@ def save_mesh(path, vertices, faces, colors=None) -> Path:
         raise ValueError(f"save_mesh: unsupported suffix {path.suffix!r}")
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
-    kwargs = {}
+    vertex_colors = None
     if colors is not None:
-        c = np.asarray(colors)
-        if c.dtype != np.uint8:
-            c = (np.clip(c, 0, 1) * 255 + 0.5).astype(np.uint8)
-        kwargs["vertex_colors"] = c
-    mesh = trimesh.Trimesh(v, f, process=False, **kwargs)
+        vertex_colors = np.asarray(colors)
+        if vertex_colors.dtype != np.uint8:
+            vertex_colors = (np.clip(vertex_colors, 0, 1) * 255 + 0.5).astype(np.uint8)
+    mesh = trimesh.Trimesh(v, f, process=False, vertex_colors=vertex_colors)
     data = mesh.export(file_type=fmt)
     if isinstance(data, str):
         data = data.encode()

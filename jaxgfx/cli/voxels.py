@@ -38,20 +38,20 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
     native = ext in (".vxl", ".kv6", ".mhd", ".nhdr", ".nrrd")
     if native and resolution is not None:
         raise ValueError(f"--resolution applies to meshes and trees, not to {ext} files")
-    if not native and resolution is None:
-        raise ValueError("--resolution is required for meshes and trees")
-    if path == "tree":
-        return V.procedural_tree(resolution, key=jax.random.key(seed))
     if ext == ".vxl":
-        return V.load_vxl(p)
+        return V.load_vxl(str(p))
     if ext == ".kv6":
-        return V.load_kv6(p)
+        return V.load_kv6(str(p))
     if ext in (".mhd", ".nhdr", ".nrrd"):
-        vol, _ = V.load_volume(p)
+        vol, _ = V.load_volume(str(p))
         if iso is None:
             lo, hi = float(vol.min()), float(vol.max())
             iso = 0.5 * (lo + hi)
         return V.volume_to_voxels(vol, iso, up_axis=2)
+    if resolution is None:
+        raise ValueError("--resolution is required for meshes and trees")
+    if path == "tree":
+        return V.procedural_tree(resolution, key=jax.random.key(seed))
     from jaxgfx.io import load_mesh
 
     mesh = load_mesh(p)
