@@ -115,7 +115,9 @@ def main(argv=None) -> int:
             cam2 = C.supersampled(cam, (2, 1))
             out[f"rle/{sname}/cam{i}/aa2x1"] = digest(render(rle, cam2))
         occ, col = V.voxels_to_dense(vox)
-        out[f"rle/{sname}/reference"] = digest(RC.reference_render(jnp.asarray(occ), jnp.asarray(col), cam))
+        out[f"rle/{sname}/reference"] = digest(
+            RC.reference_render(jnp.asarray(occ), jnp.asarray(col), cam)
+        )
 
     # 4. Clip-Box terrain from the St Helens DEM and the default CSG function.
     if (data / "terrain" / "SainteHelens.dem").exists():
