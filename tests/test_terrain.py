@@ -591,40 +591,24 @@ def test_subdivision_with_displacement_stays_closed():
     np.testing.assert_array_equal(sub.vertices, again.vertices)  # same key, same details
 
 
-def _cli_args(**kw):
-    import argparse
+def _terrain_cli(tmp_path, *extra: str) -> int:
+    """``jaxgfx terrain`` through the CLI's entry point, small and fast by default."""
+    from jaxgfx.cli import main
 
-    base = dict(
-        function="saw",
-        viewer=(0, 24, 0),
-        resolution=16,
-        levels=2,
-        out="x.png",
-        camera=(0.0, -15.0),
-        size=(32, 24),
-        fov=60.0,
-        mesh=None,
-        mesh_level=None,
-        smoothing=2,
-        seed=0,
-        vertical_scale=None,
-        cell=1,
-    )
-    base.update(kw)
-    return argparse.Namespace(**base)
+    small = ["--function", "saw", "--viewer", "0,24,0", "--resolution", "16", "--levels", "2"]
+    size = ["--size", "32x24", "--smoothing", "2", "--out", str(tmp_path / "a.png")]
+    return main(["terrain", *small, *size, *extra])
 
 
 def test_cli_terrain_errors(tmp_path, capsys):
-    from jaxgfx._cli_terrain import cmd_terrain
-
-    assert cmd_terrain(_cli_args(function="nope", out=str(tmp_path / "a.png"))) == 2
+    assert _terrain_cli(tmp_path, "--function", "nope") == 2
     assert "--function" in capsys.readouterr().err
     missing = "heightmap:" + str(tmp_path / "missing.dem")
-    assert cmd_terrain(_cli_args(function=missing, out=str(tmp_path / "a.png"))) == 2
+    assert _terrain_cli(tmp_path, "--function", missing) == 2
     assert "heightmap path" in capsys.readouterr().err
-    assert cmd_terrain(_cli_args(resolution=15, out=str(tmp_path / "a.png"))) == 2
+    assert _terrain_cli(tmp_path, "--resolution", "15") == 2
     assert "size" in capsys.readouterr().err
-    assert cmd_terrain(_cli_args(levels=0, out=str(tmp_path / "a.png"))) == 2
+    assert _terrain_cli(tmp_path, "--levels", "0") == 2
     assert "levels" in capsys.readouterr().err
     assert not (tmp_path / "a.png").exists()
 
@@ -633,11 +617,9 @@ def test_cli_terrain_renders_and_exports(tmp_path):
     import imageio.v3 as iio
     import trimesh
 
-    from jaxgfx._cli_terrain import cmd_terrain
-
-    out, mesh = tmp_path / "t.png", tmp_path / "t.ply"
-    assert cmd_terrain(_cli_args(out=str(out), mesh=str(mesh), viewer=(3, 30, -5))) == 0
-    img = iio.imread(out)
+    mesh = tmp_path / "t.ply"
+    assert _terrain_cli(tmp_path, "--mesh", str(mesh), "--viewer", "3,30,-5") == 0
+    img = iio.imread(tmp_path / "a.png")
     assert img.shape[:2] == (24, 32) and img.std() > 0
     tm = trimesh.load(mesh, process=False)
     assert len(tm.faces) > 0 and np.all(np.isfinite(tm.vertices))
