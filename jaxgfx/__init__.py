@@ -4,7 +4,7 @@ Engine: one camera for every pass (``camera``), a JAX z-buffer rasterizer (``ras
 depth compositing (``compose``), I/O (``io``), scenes (``scene``) and sharded, resumable
 sweeps (``sweep``).  Chapter modules: ``terrain`` (ch. 3, Clip-Box volumetric terrain),
 ``voxels``/``raycast``/``post`` (ch. 4, RLE voxels and the per-plane ray caster), ``skin``
-and ``fit`` (ch. 5, spline skinning and deformation styles), ``gltf`` (skinned glTF assets).
+(ch. 5, spline skinning, deformation styles, style fitting and skinned glTF assets).
 Every public name is re-exported here; the modules stay importable as ``jaxgfx.<module>``.
 """
 
@@ -13,8 +13,6 @@ __version__ = "0.1.0"
 from jaxgfx import (  # noqa: E402
     camera,
     compose,
-    fit,
-    gltf,
     io,
     post,
     raster,
@@ -50,18 +48,6 @@ from jaxgfx.compose import depth_image as depth_image
 from jaxgfx.compose import fog as fog
 from jaxgfx.compose import lambert as lambert
 from jaxgfx.compose import to_uint8 as to_uint8
-from jaxgfx.fit import FitResult as FitResult
-from jaxgfx.fit import fit_style as fit_style
-from jaxgfx.fit import params_to_style as params_to_style
-from jaxgfx.fit import smoothness_penalty as smoothness_penalty
-from jaxgfx.fit import style_loss as style_loss
-from jaxgfx.fit import style_to_params as style_to_params
-from jaxgfx.gltf import GltfSkin as GltfSkin
-from jaxgfx.gltf import joint_globals as joint_globals
-from jaxgfx.gltf import joint_matrices as joint_matrices
-from jaxgfx.gltf import load_gltf_skin as load_gltf_skin
-from jaxgfx.gltf import sample_animation as sample_animation
-from jaxgfx.gltf import trs_matrix as trs_matrix
 from jaxgfx.io import atomic_write as atomic_write
 from jaxgfx.io import load_mesh as load_mesh
 from jaxgfx.io import mesh_arrays as mesh_arrays
@@ -126,6 +112,8 @@ from jaxgfx.scene import render_frame as render_frame
 from jaxgfx.scene import render_mesh_pass as render_mesh_pass
 from jaxgfx.scene import render_voxel_pass as render_voxel_pass
 from jaxgfx.scene import terrain_mesh_pass as terrain_mesh_pass
+from jaxgfx.skin import FitResult as FitResult
+from jaxgfx.skin import GltfSkin as GltfSkin
 from jaxgfx.skin import SampledBinding as SampledBinding
 from jaxgfx.skin import SkinBinding as SkinBinding
 from jaxgfx.skin import SplinePose as SplinePose
@@ -147,19 +135,25 @@ from jaxgfx.skin import demo_character as demo_character
 from jaxgfx.skin import dqs_vertex as dqs_vertex
 from jaxgfx.skin import dual_quaternion_skinning as dual_quaternion_skinning
 from jaxgfx.skin import dual_quaternions as dual_quaternions
+from jaxgfx.skin import fit_style as fit_style
 from jaxgfx.skin import forward_kinematics as forward_kinematics
 from jaxgfx.skin import frame_inverse as frame_inverse
 from jaxgfx.skin import identity_style as identity_style
+from jaxgfx.skin import joint_globals as joint_globals
+from jaxgfx.skin import joint_matrices as joint_matrices
 from jaxgfx.skin import lbs_vertex as lbs_vertex
 from jaxgfx.skin import limb_mesh as limb_mesh
 from jaxgfx.skin import linear_blend_skinning as linear_blend_skinning
+from jaxgfx.skin import load_gltf_skin as load_gltf_skin
 from jaxgfx.skin import make_rig as make_rig
 from jaxgfx.skin import make_style as make_style
 from jaxgfx.skin import matrix_to_quaternion as matrix_to_quaternion
 from jaxgfx.skin import muscle_style as muscle_style
+from jaxgfx.skin import params_to_style as params_to_style
 from jaxgfx.skin import prepare_sampled as prepare_sampled
 from jaxgfx.skin import radial_scale as radial_scale
 from jaxgfx.skin import rect_scale as rect_scale
+from jaxgfx.skin import sample_animation as sample_animation
 from jaxgfx.skin import sample_curve as sample_curve
 from jaxgfx.skin import sample_spline_frames as sample_spline_frames
 from jaxgfx.skin import sample_texture as sample_texture
@@ -167,12 +161,16 @@ from jaxgfx.skin import skin_exact as skin_exact
 from jaxgfx.skin import skin_sampled as skin_sampled
 from jaxgfx.skin import skin_vertex_exact as skin_vertex_exact
 from jaxgfx.skin import skin_vertex_sampled as skin_vertex_sampled
+from jaxgfx.skin import smoothness_penalty as smoothness_penalty
 from jaxgfx.skin import spline_frame as spline_frame
 from jaxgfx.skin import spline_frames as spline_frames
 from jaxgfx.skin import spline_point as spline_point
 from jaxgfx.skin import spline_tangent as spline_tangent
 from jaxgfx.skin import start_normal as start_normal
+from jaxgfx.skin import style_loss as style_loss
 from jaxgfx.skin import style_offset_sampled as style_offset_sampled
+from jaxgfx.skin import style_to_params as style_to_params
+from jaxgfx.skin import trs_matrix as trs_matrix
 from jaxgfx.skin import validate_pose as validate_pose
 from jaxgfx.sweep import batch_size as batch_size
 from jaxgfx.sweep import chunk_path as chunk_path

@@ -558,28 +558,24 @@ def test_sampled_styles_match_exact_dominant_only():
 
 
 def test_fox_bind_pose_lbs_returns_bind_mesh(data_dir):
-    from jaxgfx import gltf
-
-    fox = gltf.load_gltf_skin(data_dir / "rigs" / "fox.glb")
+    fox = skin.load_gltf_skin(data_dir / "rigs" / "fox.glb")
     assert fox.vertices.shape == (1728, 3) and fox.joints.shape == (1728, 4)
     assert len(fox.joint_names) == 23
     np.testing.assert_allclose(fox.weights.sum(1), 1.0, atol=1e-6)
-    mats = gltf.joint_matrices(fox, fox.rest_trs)
+    mats = skin.joint_matrices(fox, fox.rest_trs)
     pos, nrm = lbs_jit(jnp.asarray(mats), fox.vertices, fox.normals, fox.joints, fox.weights)
     size = float(np.linalg.norm(fox.vertices.max(0) - fox.vertices.min(0)))
     # the Blender re-export's rest TRS and inverse bind matrices agree to about 0.1 % of the size
     assert float(np.abs(np.asarray(pos) - fox.vertices).max()) < 5e-3 * size
     # an animated frame moves the mesh, stays finite
-    anim = gltf.joint_matrices(fox, gltf.sample_animation(fox, 0.7))
+    anim = skin.joint_matrices(fox, skin.sample_animation(fox, 0.7))
     moved = lbs_jit(jnp.asarray(anim), fox.vertices, fox.normals, fox.joints, fox.weights)[0]
     assert bool(jnp.all(jnp.isfinite(moved))) and float(jnp.abs(moved - pos).max()) > 1e-3 * size
 
 
 def test_gltf_bad_path(tmp_path):
-    from jaxgfx import gltf
-
     with pytest.raises(FileNotFoundError, match="path"):
-        gltf.load_gltf_skin(tmp_path / "missing.glb")
+        skin.load_gltf_skin(tmp_path / "missing.glb")
 
 
 def test_cli_skin_handler_writes_image(tmp_path):
