@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.rig import SplineRig
 from jaxgfx._src.skin.spline import frame_inverse, spline_frame, spline_point, spline_tangent
 
@@ -181,8 +182,7 @@ def bind_mesh(
         if not np.all(np.isfinite(n)):
             raise ValueError("normals must be finite")
         n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    if not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"iterations must be a positive int, got {iterations!r}")
+    iterations = check_int("iterations", iterations, low=1)
     x, local, local_n = _bind_all(rig, jnp.asarray(v), jnp.asarray(n), jnp.asarray(idx), iterations)
     return SkinBinding(
         spline=jnp.asarray(idx),

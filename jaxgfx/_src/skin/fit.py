@@ -22,6 +22,7 @@ import numpy as np
 import optax
 from tqdm.auto import tqdm
 
+from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.rig import SplinePose, SplineRig
 from jaxgfx._src.skin.skinning import skin_exact
@@ -167,8 +168,7 @@ def fit_style(
         :class:`FitResult` with the fitted style and the loss history.
     """
     _check_fit_inputs(rig, binding, poses, targets, init_style)
-    if not isinstance(steps, int) or steps < 0:
-        raise ValueError(f"steps must be a non-negative int, got {steps!r}")
+    steps = check_int("steps", steps, low=0)
     if not smoothness >= 0:
         raise ValueError(f"smoothness must be >= 0, got {smoothness}")
     if styles == "none":

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.checks import static_field
 from jaxgfx._src.skin.geometry import _concrete
 
 __all__ = [
@@ -67,8 +68,8 @@ class SplineRig:
 
     bind: SplinePose
     reference_normal: jax.Array
-    parent: tuple[int, ...] = dataclasses.field(metadata=dict(static=True), default=())
-    parent_point: tuple[int, ...] = dataclasses.field(metadata=dict(static=True), default=())
+    parent: tuple[int, ...] = static_field(default=())
+    parent_point: tuple[int, ...] = static_field(default=())
 
     @property
     def num_splines(self) -> int:

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _normalize
 from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
@@ -61,8 +62,7 @@ class SampledBinding(NamedTuple):
 
 def prepare_sampled(binding: SkinBinding, samples: int = 32) -> SampledBinding:
     """Lay a :class:`SkinBinding` out for the sampled path with ``samples`` per spline."""
-    if not isinstance(samples, int) or samples < 2:
-        raise ValueError(f"samples must be an int >= 2, got {samples!r}")
+    samples = check_int("samples", samples, low=2)
     coord = binding.spline.astype(jnp.float32) * samples + binding.x * (samples - 1)
     dom = jnp.argmax(binding.weight, axis=1)
     take = lambda a: jnp.take_along_axis(a, dom[:, None], axis=1)[:, 0]  # noqa: E731
@@ -109,8 +109,7 @@ def sample_spline_frames(
         (columns of ``[R | t]``) and the slope to the next sample; ``style`` (K * S, 20): the pose
         rotation ``[b_N | b_B | b_T]`` (9 values) and its slope, then ``β/π`` and ``|γ|/π``.
     """
-    if not isinstance(samples, int) or samples < 2:
-        raise ValueError(f"samples must be an int >= 2, got {samples!r}")
+    samples = check_int("samples", samples, low=2)
     xs = jnp.linspace(0.0, 1.0, samples)
     posed = spline_frames(rig, pose, xs)
     bound = spline_frames(rig, rig.bind, xs)
