@@ -112,6 +112,7 @@ from jaxgfx.scene import render_frame as render_frame
 from jaxgfx.scene import render_mesh_pass as render_mesh_pass
 from jaxgfx.scene import render_voxel_pass as render_voxel_pass
 from jaxgfx.scene import terrain_mesh_pass as terrain_mesh_pass
+from jaxgfx.skin import DemoArm as DemoArm
 from jaxgfx.skin import FitResult as FitResult
 from jaxgfx.skin import GltfSkin as GltfSkin
 from jaxgfx.skin import SampledBinding as SampledBinding
@@ -131,6 +132,8 @@ from jaxgfx.skin import bind_vertex as bind_vertex
 from jaxgfx.skin import bone_transforms as bone_transforms
 from jaxgfx.skin import bone_weights_from_binding as bone_weights_from_binding
 from jaxgfx.skin import brute_force_binding as brute_force_binding
+from jaxgfx.skin import demo_arm as demo_arm
+from jaxgfx.skin import demo_arm_pose as demo_arm_pose
 from jaxgfx.skin import demo_character as demo_character
 from jaxgfx.skin import dqs_vertex as dqs_vertex
 from jaxgfx.skin import dual_quaternion_skinning as dual_quaternion_skinning

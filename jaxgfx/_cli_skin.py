@@ -48,18 +48,9 @@ def cmd_skin(args) -> int:
         raise SystemExit(f"--size must look like 320x320, got {args.size!r}") from None
     if w <= 0 or h <= 0 or not (math.isfinite(args.bend) and math.isfinite(args.twist)):
         raise SystemExit("--size must be positive and --bend/--twist finite")
-    v, n, faces = skin.limb_mesh(24, 41, 0.22, 2.0)
-    rig = skin.make_rig(
-        np.array([[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.0]]], np.float32),
-        reference_normal=[[1.0, 0.0, 0.0]],
-    )
-    binding = skin.bind_mesh(
-        rig, v, np.zeros((len(v), 1), np.int32), np.ones((len(v), 1)), normals=n
-    )
-    rot = skin.axis_angle_to_matrix(jnp.array([-math.radians(args.bend), 0.0, 0.0]))
-    pose = skin.forward_kinematics(
-        rig, jnp.eye(3)[None], rot[None], twist=jnp.array([math.radians(args.twist)], jnp.float32)
-    )
+    arm = skin.demo_arm()
+    rig, binding, faces = arm.rig, arm.binding, arm.faces
+    pose = skin.demo_arm_pose(rig, math.radians(args.bend), math.radians(args.twist))
     style = skin.muscle_style() if args.style == "muscle" else None
     styles = "both" if (style is not None and args.method == "spline") else "none"
 
@@ -88,7 +79,7 @@ def cmd_skin(args) -> int:
     path = Path(args.out) / "skin.png"
     save_png(path, np.asarray(img))
     print(
-        f"{args.method} (style {styles}): {len(v)} vertices, first call {first:.3f} s, "
+        f"{args.method} (style {styles}): {len(arm.vertices)} vertices, first call {first:.3f} s, "
         f"steady {steady * 1e3:.3f} ms; wrote {path}"
     )
     return 0

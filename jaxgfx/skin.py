@@ -22,8 +22,8 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
   :func:`fit_style`.
 * Skinned glTF characters (JOINTS_0 / WEIGHTS_0, animations) -- ``gltf``:
   :func:`load_gltf_skin`, :func:`joint_matrices`.
-* The demo arm of the scene, the CLI and the tests -- ``demo``: :func:`demo_character`,
-  :func:`limb_mesh`.
+* The demo arm of the scene, the CLI and the tests -- ``demo``: :func:`demo_arm`,
+  :func:`demo_arm_pose`, :func:`demo_character`, :func:`limb_mesh`.
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ from jaxgfx._src.skin.binding import SkinBinding as SkinBinding
 from jaxgfx._src.skin.binding import bind_mesh as bind_mesh
 from jaxgfx._src.skin.binding import bind_vertex as bind_vertex
 from jaxgfx._src.skin.binding import brute_force_binding as brute_force_binding
+from jaxgfx._src.skin.demo import DemoArm as DemoArm
+from jaxgfx._src.skin.demo import demo_arm as demo_arm
+from jaxgfx._src.skin.demo import demo_arm_pose as demo_arm_pose
 from jaxgfx._src.skin.demo import demo_character as demo_character
 from jaxgfx._src.skin.demo import limb_mesh as limb_mesh
 from jaxgfx._src.skin.fit import FitResult as FitResult
@@ -149,5 +152,8 @@ __all__ = [
     "joint_globals",
     "joint_matrices",
     "limb_mesh",
+    "DemoArm",
+    "demo_arm",
+    "demo_arm_pose",
     "demo_character",
 ]
