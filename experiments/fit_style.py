@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _skin_common import cylinder, machine, markdown_table, write_table  # noqa: E402
 
-from jaxgfx import fit, skin  # noqa: E402
+from jaxgfx import skin  # noqa: E402
 
 RADIUS = 0.25
 
@@ -157,7 +157,7 @@ def main(argv=None) -> int:
     targets_a = skin_all(rig, binding, stacked, truth)
     init = skin.identity_style(tex_shape, curve_len)
     before_a = errors(skin_all(rig, binding, stacked, init), targets_a, RADIUS)
-    res_a = fit.fit_style(
+    res_a = skin.fit_style(
         rig, binding, stacked, targets_a, init, steps=steps, learning_rate=0.03, smoothness=0.0
     )
     after_a = errors(skin_all(rig, binding, stacked, res_a.style), targets_a, RADIUS)
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
     # (b) a different deformation: analytic muscle bulge
     targets_b = muscle_targets(rig, binding, stacked, RADIUS)
     before_b = errors(skin_all(rig, binding, stacked, init), targets_b, RADIUS)
-    res_b = fit.fit_style(
+    res_b = skin.fit_style(
         rig, binding, stacked, targets_b, init, steps=steps, learning_rate=0.03, smoothness=1e-3
     )
     after_b = errors(skin_all(rig, binding, stacked, res_b.style), targets_b, RADIUS)

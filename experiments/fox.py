@@ -1,7 +1,7 @@
 """The real asset: the glTF sample Fox animated with our LBS, and its tail replaced by one spline.
 
 ``../shared/data/rigs/fox.glb`` (1,728 vertices, 23 joints, 4 influences per vertex).  Its skin
-and clip are read with pygltflib (:mod:`jaxgfx.gltf`) and animated with
+and clip are read with pygltflib (:func:`jaxgfx.skin.load_gltf_skin`) and animated with
 :func:`jaxgfx.skin.linear_blend_skinning`.  Then the three tail joints (b_Tail01-03) are replaced
 by a single spline through their origins (thesis 5.9.3: fewer control joints); the tail weight of
 each vertex goes to the spline, the rest stays on its bones.  The spline's start normal follows
@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _skin_common import machine, markdown_table, write_table  # noqa: E402
 
-from jaxgfx import gltf, skin  # noqa: E402
+from jaxgfx import skin  # noqa: E402
 
 DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rigs" / "fox.glb"
 TAIL = ("b_Tail01", "b_Tail02", "b_Tail03")
@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fox", default=str(DEFAULT), help="path to fox.glb")
     args = ap.parse_args(argv)
     print(machine())
-    fox = gltf.load_gltf_skin(args.fox)
+    fox = skin.load_gltf_skin(args.fox)
     names = list(fox.joint_names)
     tail = [names.index(n) for n in TAIL]
     frames = 6 if args.quick else 12
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     j, w = jnp.asarray(fox.joints), jnp.asarray(fox.weights)
 
     # spline through the rest-pose origins of the tail joints
-    rest_globals = gltf.joint_globals(fox, fox.rest_trs)
+    rest_globals = skin.joint_globals(fox, fox.rest_trs)
     bind_pts = rest_globals[tail, :3, 3].astype(np.float32)
     rig = skin.make_rig(bind_pts[None], stiffness=3.0)
     tail_w = np.where(np.isin(fox.joints, tail), fox.weights, 0.0).sum(1)
@@ -110,8 +110,8 @@ def main(argv=None) -> int:
     orig, hybrid, dev_mean, dev_max = [], [], [], []
     t0 = time.perf_counter()
     for t in times:
-        local = gltf.sample_animation(fox, t)
-        globs = gltf.joint_globals(fox, local)
+        local = skin.sample_animation(fox, t)
+        globs = skin.joint_globals(fox, local)
         mats = jnp.asarray((globs @ fox.inverse_bind)[:, :3, :], jnp.float32)
         po, no = lbs(mats, v, n, j, w)
         pts = jnp.asarray(globs[tail, :3, 3], jnp.float32)
@@ -126,7 +126,7 @@ def main(argv=None) -> int:
     bind_err = (
         float(
             np.abs(
-                np.asarray(lbs(jnp.asarray(gltf.joint_matrices(fox, fox.rest_trs)), v, n, j, w)[0])
+                np.asarray(lbs(jnp.asarray(skin.joint_matrices(fox, fox.rest_trs)), v, n, j, w)[0])
                 - fox.vertices
             ).max()
         )

@@ -209,21 +209,13 @@ class CharacterPass:
 
 
 def demo_character_pass(offset=(5.0, 0.0, 4.0), scale: float = 1.4) -> CharacterPass:
-    """The demo character: a tapered arm on one stiffness spline with the muscle style."""
-    v, n, faces = skin.limb_mesh(24, 41, 0.22, 2.0)
-    rig = skin.make_rig(
-        np.array([[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.0]]], np.float32),
-        stiffness=4.0,
-        reference_normal=[[1.0, 0.0, 0.0]],
-    )
-    binding = skin.bind_mesh(
-        rig, v, np.zeros((len(v), 1), np.int32), np.ones((len(v), 1)), normals=n
-    )
+    """The demo character: :func:`jaxgfx.skin.demo_arm` with the muscle style."""
+    arm = skin.demo_arm()
     return CharacterPass(
-        rig=rig,
-        binding=skin.prepare_sampled(binding, 32),
+        rig=arm.rig,
+        binding=skin.prepare_sampled(arm.binding, 32),
         style=skin.muscle_style(),
-        faces=jnp.asarray(faces),
+        faces=jnp.asarray(arm.faces),
         color=jnp.array([0.85, 0.62, 0.5], jnp.float32),
         scale=jnp.float32(scale),
         offset=jnp.asarray(offset, jnp.float32),
@@ -233,11 +225,7 @@ def demo_character_pass(offset=(5.0, 0.0, 4.0), scale: float = 1.4) -> Character
 def character_pose(ch: CharacterPass, phase: jax.Array) -> skin.SplinePose:
     """Animation of the demo arm: bend up to ~115 degrees and twist with ``phase`` in [0, 1)."""
     ang = 2.0 * jnp.pi * phase
-    bend = 1.0 - jnp.cos(ang)
-    rot = skin.axis_angle_to_matrix(jnp.stack([-bend, 0.0, 0.0]).astype(jnp.float32))
-    return skin.forward_kinematics(
-        ch.rig, jnp.eye(3)[None], rot[None], twist=(0.6 * jnp.sin(ang))[None]
-    )
+    return skin.demo_arm_pose(ch.rig, 1.0 - jnp.cos(ang), 0.6 * jnp.sin(ang))
 
 
 def render_character(

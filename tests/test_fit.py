@@ -1,4 +1,4 @@
-"""Tests for jaxgfx.fit: fitting a deformation style reduces the loss on a tiny problem."""
+"""Tests for jaxgfx.skin.fit_style: a fitted style lowers the loss on a tiny problem."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxgfx import fit, skin
+from jaxgfx import skin
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def problem():
 def test_fit_reduces_loss(problem):
     rig, binding, poses, targets = problem
     init = skin.identity_style((3, 4), 4)
-    res = fit.fit_style(
+    res = skin.fit_style(
         rig,
         binding,
         poses,
@@ -59,20 +59,20 @@ def test_fit_reduces_loss(problem):
 
 
 def test_smoothness_penalty_zero_for_constant_and_positive_otherwise():
-    params = fit.style_to_params(skin.identity_style((3, 4), 4))
-    assert float(fit.smoothness_penalty(params)) == 0.0
+    params = skin.style_to_params(skin.identity_style((3, 4), 4))
+    assert float(skin.smoothness_penalty(params)) == 0.0
     bumpy = {**params, "curves": params["curves"].at[0, 1].set(0.5)}
-    np.testing.assert_allclose(fit.smoothness_penalty(bumpy), 2 * 0.25 / 9, rtol=1e-6)
+    np.testing.assert_allclose(skin.smoothness_penalty(bumpy), 2 * 0.25 / 9, rtol=1e-6)
 
 
 def test_fit_bad_input(problem):
     rig, binding, poses, targets = problem
     init = skin.identity_style((3, 4), 4)
     with pytest.raises(ValueError, match="targets"):
-        fit.fit_style(rig, binding, poses, targets[:, :-1], init, steps=1, progress=False)
+        skin.fit_style(rig, binding, poses, targets[:, :-1], init, steps=1, progress=False)
     with pytest.raises(ValueError, match="smoothness"):
-        fit.fit_style(rig, binding, poses, targets, init, steps=1, smoothness=-1.0, progress=False)
+        skin.fit_style(rig, binding, poses, targets, init, steps=1, smoothness=-1.0, progress=False)
     with pytest.raises(ValueError, match="styles"):
-        fit.fit_style(rig, binding, poses, targets, init, steps=1, styles="none", progress=False)
+        skin.fit_style(rig, binding, poses, targets, init, steps=1, styles="none", progress=False)
     with pytest.raises(TypeError, match="init_style"):
-        fit.fit_style(rig, binding, poses, targets, None, steps=1, progress=False)
+        skin.fit_style(rig, binding, poses, targets, None, steps=1, progress=False)

@@ -558,48 +558,37 @@ def test_sampled_styles_match_exact_dominant_only():
 
 
 def test_fox_bind_pose_lbs_returns_bind_mesh(data_dir):
-    from jaxgfx import gltf
-
-    fox = gltf.load_gltf_skin(data_dir / "rigs" / "fox.glb")
+    fox = skin.load_gltf_skin(data_dir / "rigs" / "fox.glb")
     assert fox.vertices.shape == (1728, 3) and fox.joints.shape == (1728, 4)
     assert len(fox.joint_names) == 23
     np.testing.assert_allclose(fox.weights.sum(1), 1.0, atol=1e-6)
-    mats = gltf.joint_matrices(fox, fox.rest_trs)
+    mats = skin.joint_matrices(fox, fox.rest_trs)
     pos, nrm = lbs_jit(jnp.asarray(mats), fox.vertices, fox.normals, fox.joints, fox.weights)
     size = float(np.linalg.norm(fox.vertices.max(0) - fox.vertices.min(0)))
     # the Blender re-export's rest TRS and inverse bind matrices agree to about 0.1 % of the size
     assert float(np.abs(np.asarray(pos) - fox.vertices).max()) < 5e-3 * size
     # an animated frame moves the mesh, stays finite
-    anim = gltf.joint_matrices(fox, gltf.sample_animation(fox, 0.7))
+    anim = skin.joint_matrices(fox, skin.sample_animation(fox, 0.7))
     moved = lbs_jit(jnp.asarray(anim), fox.vertices, fox.normals, fox.joints, fox.weights)[0]
     assert bool(jnp.all(jnp.isfinite(moved))) and float(jnp.abs(moved - pos).max()) > 1e-3 * size
 
 
 def test_gltf_bad_path(tmp_path):
-    from jaxgfx import gltf
-
     with pytest.raises(FileNotFoundError, match="path"):
-        gltf.load_gltf_skin(tmp_path / "missing.glb")
+        skin.load_gltf_skin(tmp_path / "missing.glb")
 
 
-def test_cli_skin_handler_writes_image(tmp_path):
-    import argparse
-
-    from jaxgfx import _cli_skin
-
-    parser = argparse.ArgumentParser()
-    _cli_skin.register(parser.add_subparsers())
-    args = parser.parse_args(
-        ["skin", "--method", "dqs", "--bend", "60", "--size", "24x20", "--out", str(tmp_path)]
-    )
-    assert args.func(args) == 0
+def test_cli_skin_writes_image(tmp_path, capsys):
     import imageio.v3 as iio
 
+    from jaxgfx.cli import main
+
+    argv = ["skin", "--method", "dqs", "--bend", "60", "--size", "24x20", "--out", str(tmp_path)]
+    assert main(argv) == 0
     img = iio.imread(tmp_path / "skin.png")
     assert img.shape == (20, 24, 3) and img.min() < 250  # something was drawn
-    bad = parser.parse_args(["skin", "--size", "0x3", "--out", str(tmp_path)])
-    with pytest.raises(SystemExit):
-        bad.func(bad)
+    assert main(["skin", "--size", "0x3", "--out", str(tmp_path)]) == 2
+    assert "error: argument --size" in capsys.readouterr().err
 
 
 def test_hollow_scales_about_displaced_origin():

@@ -46,18 +46,9 @@ def run(args) -> int:
     w, h = args.size
     if not (math.isfinite(args.bend) and math.isfinite(args.twist)):
         raise CliError(f"--bend and --twist must be finite, got {args.bend}, {args.twist}")
-    v, n, faces = skin.limb_mesh(24, 41, 0.22, 2.0)
-    rig = skin.make_rig(
-        np.array([[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.0]]], np.float32),
-        reference_normal=[[1.0, 0.0, 0.0]],
-    )
-    binding = skin.bind_mesh(
-        rig, v, np.zeros((len(v), 1), np.int32), np.ones((len(v), 1)), normals=n
-    )
-    rot = skin.axis_angle_to_matrix(jnp.array([-math.radians(args.bend), 0.0, 0.0]))
-    pose = skin.forward_kinematics(
-        rig, jnp.eye(3)[None], rot[None], twist=jnp.array([math.radians(args.twist)], jnp.float32)
-    )
+    arm = skin.demo_arm()
+    rig, binding, faces = arm.rig, arm.binding, arm.faces
+    pose = skin.demo_arm_pose(rig, math.radians(args.bend), math.radians(args.twist))
     style = skin.muscle_style() if args.style == "muscle" else None
     styles = "both" if (style is not None and args.method == "spline") else "none"
 
@@ -86,7 +77,7 @@ def run(args) -> int:
     path = Path(args.out) / "skin.png"
     save_png(path, np.asarray(img))
     print(
-        f"{args.method} (style {styles}): {len(v)} vertices, first call {first:.3f} s, "
+        f"{args.method} (style {styles}): {len(arm.vertices)} vertices, first call {first:.3f} s, "
         f"steady {steady * 1e3:.3f} ms; wrote {path}"
     )
     return 0

@@ -22,7 +22,11 @@ import numpy as np
 import optax
 from tqdm.auto import tqdm
 
-from jaxgfx import skin
+from jaxgfx._src.checks import check_int
+from jaxgfx._src.skin.binding import SkinBinding
+from jaxgfx._src.skin.rig import SplinePose, SplineRig
+from jaxgfx._src.skin.skinning import skin_exact
+from jaxgfx._src.skin.styles import Style
 
 __all__ = [
     "FitResult",
@@ -37,20 +41,20 @@ __all__ = [
 class FitResult(NamedTuple):
     """Result of :func:`fit_style`."""
 
-    style: skin.Style  # the fitted style
+    style: Style  # the fitted style
     loss_history: np.ndarray  # shape=(steps + 1,), float64, total loss before each step and after
     data_history: np.ndarray  # shape=(steps + 1,), float64, the data term alone
     seconds: float  # wall time of the optimization loop, compilation included
 
 
-def style_to_params(style: skin.Style) -> dict:
+def style_to_params(style: Style) -> dict:
     """Log-parameters of a style (textures and curves must be > 0)."""
     return {"textures": jnp.log(style.textures), "curves": jnp.log(style.curves)}
 
 
-def params_to_style(params: dict, hollow) -> skin.Style:
+def params_to_style(params: dict, hollow) -> Style:
     """Inverse of :func:`style_to_params`."""
-    return skin.Style(
+    return Style(
         textures=jnp.exp(params["textures"]),
         curves=jnp.exp(params["curves"]),
         hollow=jnp.asarray(hollow, jnp.float32),
@@ -69,9 +73,9 @@ def smoothness_penalty(params: dict) -> jax.Array:
 
 def style_loss(
     params: dict,
-    rig: skin.SplineRig,
-    binding: skin.SkinBinding,
-    poses: skin.SplinePose,
+    rig: SplineRig,
+    binding: SkinBinding,
+    poses: SplinePose,
     targets: jax.Array,
     hollow: jax.Array,
     *,
@@ -97,18 +101,16 @@ def style_loss(
     """
     style = params_to_style(params, hollow)
     pred = jax.vmap(
-        lambda p: skin.skin_exact(
-            rig, p, binding, style, styles=styles, dominant_only=dominant_only
-        )[0]
+        lambda p: skin_exact(rig, p, binding, style, styles=styles, dominant_only=dominant_only)[0]
     )(poses)
     data = jnp.mean(jnp.sum((pred - targets) ** 2, axis=-1))
     return data + smoothness * smoothness_penalty(params), data
 
 
 def _check_fit_inputs(rig, binding, poses, targets, init_style):
-    if not isinstance(binding, skin.SkinBinding):
+    if not isinstance(binding, SkinBinding):
         raise TypeError("binding must be a SkinBinding (use jaxgfx.skin.bind_mesh)")
-    if not isinstance(init_style, skin.Style):
+    if not isinstance(init_style, Style):
         raise TypeError("init_style must be a Style (use jaxgfx.skin.make_style)")
     pts = np.asarray(poses.points)
     if pts.ndim != 4 or pts.shape[1:] != (rig.num_splines, 3, 3):
@@ -126,11 +128,11 @@ def _check_fit_inputs(rig, binding, poses, targets, init_style):
 
 
 def fit_style(
-    rig: skin.SplineRig,
-    binding: skin.SkinBinding,
-    poses: skin.SplinePose,
+    rig: SplineRig,
+    binding: SkinBinding,
+    poses: SplinePose,
     targets,
-    init_style: skin.Style,
+    init_style: Style,
     *,
     steps: int = 500,
     learning_rate: float = 0.05,
@@ -166,8 +168,7 @@ def fit_style(
         :class:`FitResult` with the fitted style and the loss history.
     """
     _check_fit_inputs(rig, binding, poses, targets, init_style)
-    if not isinstance(steps, int) or steps < 0:
-        raise ValueError(f"steps must be a non-negative int, got {steps!r}")
+    steps = check_int("steps", steps, low=0)
     if not smoothness >= 0:
         raise ValueError(f"smoothness must be >= 0, got {smoothness}")
     if styles == "none":

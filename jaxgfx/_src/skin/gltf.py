@@ -12,7 +12,7 @@ ignored.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -25,7 +25,7 @@ __all__ = [
     "joint_matrices",
 ]
 
-_COMPONENT = {
+_COMPONENT: dict[int, type[np.number[Any]]] = {
     5120: np.int8,
     5121: np.uint8,
     5122: np.int16,
@@ -173,8 +173,8 @@ def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
     )
     rest = np.stack([_node_trs(gltf.nodes[n]) for n in joint_nodes])
 
-    times = [[None, None, None] for _ in joint_nodes]
-    values = [[None, None, None] for _ in joint_nodes]
+    times: list[list[np.ndarray | None]] = [[None, None, None] for _ in joint_nodes]
+    values: list[list[np.ndarray | None]] = [[None, None, None] for _ in joint_nodes]
     duration = 0.0
     if gltf.animations:
         anim = gltf.animations[0]

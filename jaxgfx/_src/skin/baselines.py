@@ -1,0 +1,233 @@
+"""Baselines driven by the same skeleton: linear blend and dual quaternion skinning (thesis 5.9).
+
+The thesis compares spline skinning with matrix skinning (SSD / linear blend skinning) and dual
+quaternion skinning (Kavan et al. 2007).  :func:`bone_transforms` turns a spline pose into two
+rigid bones per spline, so both baselines see exactly the joint rotations and twist the spline
+sees; :func:`bone_weights_from_binding` derives their influences from a spline binding.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jaxgfx._src.skin.binding import SkinBinding
+from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _concrete, _normalize, _safe_norm
+from jaxgfx._src.skin.rig import SplinePose, SplineRig
+from jaxgfx._src.skin.spline import frame_inverse, spline_frames
+
+__all__ = [
+    "bone_transforms",
+    "bone_weights_from_binding",
+    "lbs_vertex",
+    "linear_blend_skinning",
+    "matrix_to_quaternion",
+    "dual_quaternions",
+    "dqs_vertex",
+    "dual_quaternion_skinning",
+]
+
+
+# ----------------------------------------------------------------------------------------------
+# the skeleton as bones
+# ----------------------------------------------------------------------------------------------
+
+
+def bone_transforms(rig: SplineRig, pose: SplinePose) -> jax.Array:
+    """Rigid bone transforms of the same skeleton: two bones per spline.
+
+    Bone ``2k`` is the spline frame change at ``x = 0`` and bone ``2k + 1`` at ``x = 1``,
+    ``B(x) B'(x)^{-1}``, so LBS/DQS see exactly the joint rotations and twist the spline sees.
+
+    Returns:
+        (2K, 3, 4) affine transforms ``[R | t]`` with proper rotations.
+    """
+    ends = jnp.array([0.0, 1.0])
+    posed = spline_frames(rig, pose, ends)
+    bound = spline_frames(rig, rig.bind, ends)
+    rel = jax.vmap(jax.vmap(lambda p, b: _compose(p, frame_inverse(b))))(posed, bound)
+    return rel.reshape(-1, 3, 4)
+
+
+def bone_weights_from_binding(binding: SkinBinding, blend_width: float = 0.25):
+    """LBS influences equal to a spline binding: each spline weight split between its two bones.
+
+    The split is a smoothstep in ``x`` of width ``blend_width`` centred at ``x = 0.5`` (the joint).
+
+    Returns:
+        joints (V, 2I) int32 and weights (V, 2I) float32 summing to one.
+    """
+    if not blend_width > 0:
+        raise ValueError(f"blend_width must be > 0, got {blend_width}")
+    t = jnp.clip((binding.x - 0.5) / blend_width + 0.5, 0.0, 1.0)
+    s = t * t * (3 - 2 * t)
+    joints = jnp.concatenate([2 * binding.spline, 2 * binding.spline + 1], axis=1)
+    weights = jnp.concatenate([binding.weight * (1 - s), binding.weight * s], axis=1)
+    return joints.astype(jnp.int32), weights
+
+
+# ----------------------------------------------------------------------------------------------
+# linear blend skinning (SSD)
+# ----------------------------------------------------------------------------------------------
+
+
+def lbs_vertex(
+    transforms: jax.Array, joints: jax.Array, weights: jax.Array, vertex: jax.Array, normal
+) -> tuple[jax.Array, jax.Array]:
+    """Linear blend skinning (SSD) of one vertex: ``(Σ w_j M_j) v``.
+
+    Args:
+        transforms: (J, 3, 4) bone transforms (pose · inverse bind).
+        joints: (I,) bone indices.
+        weights: (I,) weights summing to one.
+        vertex: (3,) bind position.
+        normal: (3,) bind normal.
+
+    Returns:
+        Position (3,) and unit normal (3,).
+    """
+    # blend first, then one affine map; columns of [R | t] contiguous, as in the sampled spline path
+    table = jnp.swapaxes(transforms, -1, -2).reshape(-1, 12)
+    m = jnp.dot(weights, table[joints])
+    pos = m[0:3] * vertex[0] + m[3:6] * vertex[1] + m[6:9] * vertex[2] + m[9:12]
+    nrm = m[0:3] * normal[0] + m[3:6] * normal[1] + m[6:9] * normal[2]
+    return pos, nrm * lax.rsqrt(jnp.maximum(jnp.sum(nrm * nrm), _EPS_SQ))
+
+
+def _check_lbs_inputs(transforms, vertices, joints, weights):
+    nj = jnp.shape(transforms)[0]
+    if jnp.shape(transforms)[1:] != (3, 4) and jnp.shape(transforms)[1:] != (4, 4):
+        raise ValueError(f"transforms must have shape (J, 3, 4), got {jnp.shape(transforms)}")
+    nv = jnp.shape(vertices)[0]
+    if jnp.shape(joints)[0] != nv or jnp.shape(weights) != jnp.shape(joints):
+        raise ValueError(
+            f"joints {jnp.shape(joints)} and weights {jnp.shape(weights)} must both be (V, I) "
+            f"with V = {nv} (vertices)"
+        )
+    j = _concrete(joints)
+    if j is not None and (j.min() < 0 or j.max() >= nj):
+        raise ValueError(f"joints out of range [0, {nj})")
+    w = _concrete(weights)
+    if w is not None and (np.any(w < 0) or np.any(np.abs(w.sum(-1) - 1) > 1e-3)):
+        raise ValueError("weights must be non-negative and sum to one per vertex")
+
+
+def linear_blend_skinning(transforms, vertices, normals, joints, weights):
+    """LBS of a mesh: vmap of :func:`lbs_vertex`; returns positions (V, 3) and normals (V, 3)."""
+    _check_lbs_inputs(transforms, vertices, joints, weights)
+    t = transforms[:, :3, :]
+    fn = lambda j, w, v, n: lbs_vertex(t, j, w, v, n)  # noqa: E731
+    return jax.vmap(fn)(joints, weights, vertices, normals)
+
+
+# ----------------------------------------------------------------------------------------------
+# dual quaternion skinning (Kavan et al. 2007)
+# ----------------------------------------------------------------------------------------------
+
+
+def matrix_to_quaternion(rot: jax.Array) -> jax.Array:
+    """Unit quaternion ``(w, x, y, z)`` of a rotation matrix (3, 3) (Shepperd's method)."""
+    m = rot
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    cands = jnp.stack(
+        [
+            jnp.stack([1 + tr, m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]),
+            jnp.stack(
+                [
+                    m[2, 1] - m[1, 2],
+                    1 + m[0, 0] - m[1, 1] - m[2, 2],
+                    m[0, 1] + m[1, 0],
+                    m[0, 2] + m[2, 0],
+                ]
+            ),
+            jnp.stack(
+                [
+                    m[0, 2] - m[2, 0],
+                    m[0, 1] + m[1, 0],
+                    1 - m[0, 0] + m[1, 1] - m[2, 2],
+                    m[1, 2] + m[2, 1],
+                ]
+            ),
+            jnp.stack(
+                [
+                    m[1, 0] - m[0, 1],
+                    m[0, 2] + m[2, 0],
+                    m[1, 2] + m[2, 1],
+                    1 - m[0, 0] - m[1, 1] + m[2, 2],
+                ]
+            ),
+        ]
+    )
+    # pick the numerically largest candidate; each is 4 q_i q (up to sign)
+    diag = jnp.stack([tr, m[0, 0], m[1, 1], m[2, 2]])
+    q = cands[jnp.argmax(diag)]
+    q = q / _safe_norm(q).clip(1e-12)
+    return jnp.where(q[0] < 0, -q, q)
+
+
+def _qmul(a: jax.Array, b: jax.Array) -> jax.Array:
+    w1, x1, y1, z1 = a[0], a[1], a[2], a[3]
+    w2, x2, y2, z2 = b[0], b[1], b[2], b[3]
+    return jnp.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def dual_quaternions(transforms: jax.Array) -> jax.Array:
+    """Unit dual quaternions (J, 8) ``[q_r | q_d]`` of rigid transforms (J, 3, 4)."""
+
+    def one(t):
+        qr = matrix_to_quaternion(t[:, :3])
+        qd = 0.5 * _qmul(jnp.concatenate([jnp.zeros(1), t[:, 3]]), qr)
+        return jnp.concatenate([qr, qd])
+
+    return jax.vmap(one)(transforms)
+
+
+def dqs_vertex(
+    dual: jax.Array, joints: jax.Array, weights: jax.Array, vertex: jax.Array, normal: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Dual quaternion skinning of one vertex (Kavan et al. 2007).
+
+    Quaternions are sign-aligned to the dominant influence before blending (shortest path).
+
+    Args:
+        dual: (J, 8) unit dual quaternions.
+        joints, weights: (I,) influences.
+        vertex, normal: (3,) bind position and normal.
+
+    Returns:
+        Position (3,) and unit normal (3,).
+    """
+    dq = dual[joints]
+    pivot = dq[jnp.argmax(weights), :4]
+    signs = jnp.where(dq[:, :4] @ pivot < 0, -1.0, 1.0)
+    b = jnp.dot(weights * signs, dq)
+    length = _safe_norm(b[:4])
+    safe = jnp.where(length > 0, length, 1.0)
+    qr = b[:4] / safe
+    qd = b[4:] / safe
+    w, v = qr[0], qr[1:]
+
+    def rotate(p):
+        return p + 2 * jnp.cross(v, jnp.cross(v, p) + w * p)
+
+    # translation = vector part of 2 q_d conj(q_r)
+    trans = 2 * (w * qd[1:] - qd[0] * v + jnp.cross(v, qd[1:]))
+    return rotate(vertex) + trans, _normalize(rotate(normal), jnp.array([0.0, 1.0, 0.0]))
+
+
+def dual_quaternion_skinning(transforms, vertices, normals, joints, weights):
+    """DQS of a mesh: vmap of :func:`dqs_vertex`; returns positions (V, 3) and normals (V, 3)."""
+    _check_lbs_inputs(transforms, vertices, joints, weights)
+    dual = dual_quaternions(transforms[:, :3, :])
+    return jax.vmap(lambda j, w, v, n: dqs_vertex(dual, j, w, v, n))(
+        joints, weights, vertices, normals
+    )

@@ -1,0 +1,253 @@
+"""Fast computation with sampled spline matrices (thesis 5.8, Fig. 5.13-5.15).
+
+Pass 1 (:func:`sample_spline_frames`) evaluates every spline's matrices at S uniform parameters;
+pass 2 (:func:`skin_vertex_sampled`, :func:`style_offset_sampled`) interpolates them per vertex.
+
+**Fast path layout.** Pass 1 folds the bind frames into ``B'' = B B'^{-1}`` per sample (Eq. 5.7
+says it may be precomputed) and stores each sample with its slope to the next one, and the
+binding folds spline index and ``x`` into one coordinate ``u``; pass 2 then reads per influence
+exactly what matrix skinning reads (one index-like value, one weight) plus one table row.  The
+style on the dominant spline (thesis 5.8.2) is added as ``w_d R_d (D(v'_d) - v'_d)``, which equals
+Eq. 5.13 with the style on that spline only.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxgfx._src.checks import check_int
+from jaxgfx._src.skin.binding import SkinBinding
+from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _normalize
+from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
+from jaxgfx._src.skin.spline import frame_inverse, spline_frames
+from jaxgfx._src.skin.styles import Style, _check_style, _pose_weights, _style_flags, apply_style
+
+__all__ = [
+    "SampledBinding",
+    "prepare_sampled",
+    "sample_spline_frames",
+    "skin_vertex_sampled",
+    "style_offset_sampled",
+    "skin_sampled",
+]
+
+
+# ----------------------------------------------------------------------------------------------
+# binding layout (Fig. 5.13)
+# ----------------------------------------------------------------------------------------------
+
+
+class SampledBinding(NamedTuple):
+    """A binding laid out for the sampled fast path (thesis 5.8.2, Fig. 5.13), for S samples.
+
+    Spline index and parameter are folded into one table coordinate ``u = k S + x (S - 1)``
+    (row ``floor(u)``, interpolation weight ``u - floor(u)``), so pass 2 reads as many values per
+    influence as matrix skinning reads (index, weight).  The style, applied to the dominant spline
+    only (thesis 5.8.2), needs that spline's ``v'`` alone.
+    """
+
+    coord: jax.Array  # shape=(V, I), dtype=float32, u = spline * S + x * (S - 1)
+    weight: jax.Array  # shape=(V, I), dtype=float32, skinning weights
+    rest: jax.Array  # shape=(V, 3), dtype=float32, bind position v
+    rest_normal: jax.Array  # shape=(V, 3), dtype=float32, bind normal
+    dominant_coord: jax.Array  # shape=(V,), dtype=float32, u of the largest-weight influence
+    dominant_weight: jax.Array  # shape=(V,), dtype=float32, its weight
+    dominant_local: jax.Array  # shape=(V, 3), dtype=float32, its v'
+    dominant_local_normal: jax.Array  # shape=(V, 3), dtype=float32, its spline-space normal
+
+
+def prepare_sampled(binding: SkinBinding, samples: int = 32) -> SampledBinding:
+    """Lay a :class:`SkinBinding` out for the sampled path with ``samples`` per spline."""
+    samples = check_int("samples", samples, low=2)
+    coord = binding.spline.astype(jnp.float32) * samples + binding.x * (samples - 1)
+    dom = jnp.argmax(binding.weight, axis=1)
+    take = lambda a: jnp.take_along_axis(a, dom[:, None], axis=1)[:, 0]  # noqa: E731
+    take3 = lambda a: jnp.take_along_axis(a, dom[:, None, None], axis=1)[:, 0]  # noqa: E731
+    return SampledBinding(
+        coord=coord,
+        weight=binding.weight,
+        rest=binding.rest,
+        rest_normal=binding.rest_normal,
+        dominant_coord=take(coord),
+        dominant_weight=take(binding.weight),
+        dominant_local=take3(binding.local),
+        dominant_local_normal=take3(binding.local_normal),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# pass 1 (thesis 5.8.1)
+# ----------------------------------------------------------------------------------------------
+
+
+def _with_slopes(values: jax.Array) -> jax.Array:
+    """(K, S, C) samples -> (K * S, 2C) rows ``[m_s | m_{s+1} - m_s]`` (slope 0 at each end).
+
+    Pass 2 then interpolates with one row read per influence (thesis Fig. 5.15 texture filtering).
+    """
+    k, s, c = values.shape
+    slope = jnp.concatenate([values[:, 1:] - values[:, :-1], jnp.zeros((k, 1, c))], axis=1)
+    return jnp.concatenate([values, slope], axis=-1).reshape(k * s, 2 * c)
+
+
+def sample_spline_frames(
+    rig: SplineRig, pose: SplinePose, samples: int = 32
+) -> tuple[jax.Array, jax.Array]:
+    """Pass 1 (thesis 5.8.1): every spline's matrices at ``samples`` uniform ``x``.
+
+    Args:
+        rig: the rig.
+        pose: the pose.
+        samples: S >= 2 samples per spline.
+
+    Returns:
+        ``skinning`` (K * S, 24): ``B''(x_s) = B(x_s) B'(x_s)^{-1}`` (Eq. 5.7) as 12 values
+        (columns of ``[R | t]``) and the slope to the next sample; ``style`` (K * S, 20): the pose
+        rotation ``[b_N | b_B | b_T]`` (9 values) and its slope, then ``β/π`` and ``|γ|/π``.
+    """
+    samples = check_int("samples", samples, low=2)
+    xs = jnp.linspace(0.0, 1.0, samples)
+    posed = spline_frames(rig, pose, xs)
+    bound = spline_frames(rig, rig.bind, xs)
+    rel = jax.vmap(jax.vmap(lambda p, b: _compose(p, frame_inverse(b))))(posed, bound)
+    k = posed.shape[0]
+    skinning = _with_slopes(jnp.swapaxes(rel, -1, -2).reshape(k, samples, 12))
+    rot = _with_slopes(jnp.swapaxes(posed[..., :3], -1, -2).reshape(k, samples, 9))
+    bend, twist = jax.vmap(_pose_weights)(pose.points, pose.twist)
+    pw = jnp.repeat(jnp.stack([bend, twist], -1), samples, axis=0)
+    return skinning, jnp.concatenate([rot, pw], axis=-1)
+
+
+# ----------------------------------------------------------------------------------------------
+# pass 2 (thesis 5.8.2)
+# ----------------------------------------------------------------------------------------------
+
+
+def _lerp(table: jax.Array, coord: jax.Array, width: int) -> jax.Array:
+    """Row ``floor(u)`` plus ``frac(u)`` times its slope: (..., width)."""
+    r0 = jnp.floor(coord)
+    t = coord - r0
+    rows = table[r0.astype(jnp.int32)]
+    return rows[..., :width] + t[..., None] * rows[..., width : 2 * width]
+
+
+def skin_vertex_sampled(
+    skinning: jax.Array,
+    coord: jax.Array,
+    weight: jax.Array,
+    vertex: jax.Array,
+    normal: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """Pass 2 (thesis 5.8.2) without styles: ``Σ w_i B''_i(x_i) v`` (Eq. 5.7) like matrix skinning.
+
+    Args:
+        skinning: (K * S, 24) table from :func:`sample_spline_frames`.
+        coord: (I,) table coordinates ``u``.
+        weight: (I,) weights.
+        vertex, normal: (3,) bind position and unit normal.
+
+    Returns:
+        Position (3,) and unit normal (3,).
+    """
+    m = jnp.dot(weight, _lerp(skinning, coord, 12))  # blend first, then one affine map, as SSD
+    pos = m[0:3] * vertex[0] + m[3:6] * vertex[1] + m[6:9] * vertex[2] + m[9:12]
+    nrm = m[0:3] * normal[0] + m[3:6] * normal[1] + m[6:9] * normal[2]
+    return pos, nrm * lax.rsqrt(jnp.maximum(jnp.sum(nrm * nrm), _EPS_SQ))
+
+
+def style_offset_sampled(
+    style_table: jax.Array,
+    style: Style,
+    samples: int,
+    coord: jax.Array,
+    weight: jax.Array,
+    local: jax.Array,
+    local_normal: jax.Array,
+    *,
+    radial: bool = True,
+    rect: bool = True,
+) -> tuple[jax.Array, jax.Array]:
+    """Style of the dominant spline as a world-space offset (thesis 5.8.2, Eq. 5.13).
+
+    With the style on one influence ``d`` only, Eq. 5.13 equals the plain skin plus
+    ``w_d R_d(x_d) (D(v'_d) - v'_d)``, since ``B_d v'_d = B''_d v``.
+
+    Args:
+        style_table: (K * S, 20) from :func:`sample_spline_frames`.
+        style: the style.
+        samples: S.
+        coord: () table coordinate of the dominant influence.
+        weight: () its weight.
+        local, local_normal: (3,) its ``v'`` and spline-space normal.
+        radial, rect: which envelopes to apply.
+
+    Returns:
+        Position offset (3,) and normal offset (3,).
+    """
+    row = _lerp(style_table, coord, 9)
+    r0 = jnp.floor(coord)
+    spline_start = jnp.floor(r0 / samples) * samples
+    x = (coord - spline_start) / (samples - 1)
+    params = style_table[r0.astype(jnp.int32), 18:20]
+    sv, sn = apply_style(
+        style, local, local_normal, x, params[0], params[1], radial=radial, rect=rect
+    )
+    dv = sv - local
+    dn = sn - local_normal
+    pos = row[0:3] * dv[0] + row[3:6] * dv[1] + row[6:9] * dv[2]
+    nrm = row[0:3] * dn[0] + row[3:6] * dn[1] + row[6:9] * dn[2]
+    return weight * pos, weight * nrm
+
+
+def skin_sampled(
+    rig: SplineRig,
+    pose: SplinePose,
+    binding: SampledBinding,
+    style: Style | None = None,
+    *,
+    samples: int = 32,
+    styles: str = "none",
+) -> tuple[jax.Array, jax.Array]:
+    """Two-pass sampled spline skinning of a mesh (thesis 5.8), style on the dominant spline.
+
+    Args:
+        rig: the rig.
+        pose: the pose.
+        binding: from :func:`prepare_sampled` with the same ``samples``.
+        style: the style (needed unless ``styles == 'none'``).
+        samples: S per spline.
+        styles: 'none', 'radial', 'rect' or 'both'.
+
+    Returns:
+        Positions (V, 3) and unit normals (V, 3).
+    """
+    radial, rect = _style_flags(styles)
+    if (radial or rect) and style is None:
+        raise ValueError("style is required when styles != 'none'")
+    if not isinstance(binding, SampledBinding):
+        raise TypeError("binding must be a SampledBinding (use prepare_sampled)")
+    validate_pose(rig, pose)
+    pose = jax.tree_util.tree_map(jnp.asarray, pose)
+    skinning, style_table = sample_spline_frames(rig, pose, samples)
+    pos, nrm = jax.vmap(lambda u, w, v, n: skin_vertex_sampled(skinning, u, w, v, n))(
+        binding.coord, binding.weight, binding.rest, binding.rest_normal
+    )
+    if not (radial or rect):
+        return pos, nrm
+    style = jax.tree_util.tree_map(jnp.asarray, style)
+    _check_style(style)
+    dpos, dnrm = jax.vmap(
+        lambda u, w, v, n: style_offset_sampled(
+            style_table, style, samples, u, w, v, n, radial=radial, rect=rect
+        )
+    )(
+        binding.dominant_coord,
+        binding.dominant_weight,
+        binding.dominant_local,
+        binding.dominant_local_normal,
+    )
+    return pos + dpos, _normalize(nrm + dnrm, jnp.array([0.0, 1.0, 0.0]))
