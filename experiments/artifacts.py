@@ -6,7 +6,7 @@ with weights blended over a quarter of the length around the joint.  We measure 
 cross-section ring at the joint and the enclosed volume, both relative to the rest pose
 (1.0 = preserved), and render the six results side by side with the rasterizer.
 
-    python experiments/artifacts.py --quick --out out/artifacts
+    python -m experiments.artifacts --quick --out out/artifacts
 """
 
 from __future__ import annotations
@@ -14,16 +14,13 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _skin_common import cylinder, machine, markdown_table, write_table  # noqa: E402
-
-from jaxgfx import skin  # noqa: E402
+from experiments.common import cylinder, machine, markdown_table, write_table
+from jaxgfx import skin
 
 RADIUS = 0.25
 

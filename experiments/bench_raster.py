@@ -8,13 +8,12 @@ caster (the independent peer) on a random sample of the frame's pixel rays,
 extrapolated to the whole frame.  The agreement column checks both produce
 the same depth on the sampled pixels.
 
-    python experiments/bench_raster.py [--quick] [--out DIR]
+    python -m experiments.bench_raster [--quick] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -22,16 +21,12 @@ import jax
 import numpy as np
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, markdown_table, time_jitted, write_table  # noqa: E402
-
-from jaxgfx.camera import camera_basis, look_at, pixel_rays  # noqa: E402
-from jaxgfx.compose import depth_image  # noqa: E402
-from jaxgfx.io import load_mesh, save_png  # noqa: E402
-from jaxgfx.raster import rasterize  # noqa: E402
-from jaxgfx.scene import grid_faces  # noqa: E402
-
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+from experiments.common import DATA, machine, markdown_table, time_jitted, write_table
+from jaxgfx.camera import camera_basis, look_at, pixel_rays
+from jaxgfx.compose import depth_image
+from jaxgfx.io import load_mesh, save_png
+from jaxgfx.raster import rasterize
+from jaxgfx.scene import grid_faces
 
 
 def heightfield(n: int) -> trimesh.Trimesh:
@@ -141,7 +136,7 @@ def main(argv=None) -> int:
                 save_png(Path(args.out) / f"{tag}_{w}x{h}_depth.png", depth_image(out.depth))
     meta = dict(
         machine=machine(),
-        command="python experiments/bench_raster.py" + (" --quick" if args.quick else ""),
+        command="python -m experiments.bench_raster" + (" --quick" if args.quick else ""),
         trimesh_rays_max=n_rays,
         trimesh_budget_s=budget,
         note="compile_s excludes one steady run; trimesh time extrapolated from the sampled rays",

@@ -12,25 +12,22 @@ The terrain is the thesis's benchmark kind: 50 000 random CSG operations (3.5.2)
 Compile time is reported apart: the fly path runs twice and only the second run
 (same shapes, no compilation) is timed.
 
-    python experiments/clipbox_table.py --quick --out out/clipbox_table
+    python -m experiments.clipbox_table --quick --out out/clipbox_table
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
 import jax
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import machine, write_table  # noqa: E402
-
-from jaxgfx import terrain as T  # noqa: E402
-from jaxgfx.camera import camera_from_degrees  # noqa: E402
-from jaxgfx.raster import rasterize  # noqa: E402
+from experiments.common import machine, write_table
+from jaxgfx import terrain as T
+from jaxgfx.camera import camera_from_degrees
+from jaxgfx.raster import rasterize
 
 STAGES = ("generation_ms", "polygons_ms", "smoothing_ms", "normals_ms", "welding_ms")
 

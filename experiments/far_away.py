@@ -8,7 +8,7 @@ modulus 1000, CSG tiled every 1000 voxels).  The baseline in the same run puts
 absolute float32 world coordinates into the rasterizer (what a float engine does):
 at 10^9 float32 has a spacing of 64 voxels and the picture falls apart.
 
-    python experiments/far_away.py --quick --out out/far_away
+    python -m experiments.far_away --quick --out out/far_away
 """
 
 from __future__ import annotations
@@ -22,13 +22,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import machine, write_table  # noqa: E402
-
-from jaxgfx import terrain as T  # noqa: E402
-from jaxgfx.camera import camera_from_degrees  # noqa: E402
-from jaxgfx.compose import Frame, background, composite, lambert  # noqa: E402
-from jaxgfx.raster import rasterize  # noqa: E402
+from experiments.common import machine, write_table
+from jaxgfx import terrain as T
+from jaxgfx.camera import camera_from_degrees
+from jaxgfx.compose import Frame, background, composite, lambert
+from jaxgfx.raster import rasterize
 
 FAR = 1_000_000_000
 

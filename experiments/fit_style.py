@@ -10,7 +10,7 @@
 
 Figures: loss curves and the fitted scale curves (PNG).
 
-    python experiments/fit_style.py --quick --out out/fit_style
+    python -m experiments.fit_style --quick --out out/fit_style
 """
 
 from __future__ import annotations
@@ -18,16 +18,13 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _skin_common import cylinder, machine, markdown_table, write_table  # noqa: E402
-
-from jaxgfx import skin  # noqa: E402
+from experiments.common import cylinder, machine, markdown_table, write_table
+from jaxgfx import skin
 
 RADIUS = 0.25
 

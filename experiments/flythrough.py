@@ -6,7 +6,7 @@ flag (:class:`jaxgfx.terrain.GeometryWorker`) and rasterizes all levels.  Per
 frame: time, polygon count, triangles per second; plotted like Fig. 3.18 and
 saved as a short animation.
 
-    python experiments/flythrough.py --quick --out out/flythrough
+    python -m experiments.flythrough --quick --out out/flythrough
 """
 
 from __future__ import annotations
@@ -20,13 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import machine, write_table  # noqa: E402
-
-from jaxgfx import terrain as T  # noqa: E402
-from jaxgfx.camera import camera_from_degrees  # noqa: E402
-from jaxgfx.compose import Frame, background, composite, lambert  # noqa: E402
-from jaxgfx.raster import rasterize  # noqa: E402
+from experiments.common import machine, write_table
+from jaxgfx import terrain as T
+from jaxgfx.camera import camera_from_degrees
+from jaxgfx.compose import Frame, background, composite, lambert
+from jaxgfx.raster import rasterize
 
 
 def viewer_at(i: int, speed: int) -> np.ndarray:

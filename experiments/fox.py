@@ -11,27 +11,23 @@ LBS over the clip and render both as a PNG strip (and a GIF).
 Credit: model by PixelMannen (CC0), rigging and animation by @tomkranis (CC-BY 4.0), glTF
 conversion by @AsoboStudio and @scurest.
 
-    python experiments/fox.py --quick --out out/fox
+    python -m experiments.fox --quick --out out/fox
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _skin_common import machine, markdown_table, write_table  # noqa: E402
+from experiments.common import DATA, machine, markdown_table, write_table
+from jaxgfx import skin
 
-from jaxgfx import skin  # noqa: E402
-
-DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rigs" / "fox.glb"
+DEFAULT = DATA / "rigs" / "fox.glb"
 TAIL = ("b_Tail01", "b_Tail02", "b_Tail03")
 CREDIT = (
     "Fox: model by PixelMannen (CC0), rigging and animation by @tomkranis (CC-BY 4.0), glTF "

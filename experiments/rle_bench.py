@@ -17,8 +17,8 @@ count (Fig. 4.23 / 4.30).
 
 Usage::
 
-    python experiments/rle_bench.py --quick --out out/rle_bench
-    python experiments/rle_bench.py --out out/rle_bench
+    python -m experiments.rle_bench --quick --out out/rle_bench
+    python -m experiments.rle_bench --out out/rle_bench
 
 Data credit: Stanford 3D Scanning Repository (bunny, dragon), VTK sample
 data (MR / CT heads), Ken Silverman's Voxlap (untitled.vxl).

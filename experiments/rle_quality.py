@@ -13,7 +13,7 @@ in the thesis), and :func:`jaxgfx.post.antialias` averages them back.
 
 Usage::
 
-    python experiments/rle_quality.py --quick --out out/rle_quality
+    python -m experiments.rle_quality --quick --out out/rle_quality
 """
 
 from __future__ import annotations

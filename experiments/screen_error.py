@@ -5,7 +5,7 @@ Clip-Boxes of resolution N and compared with the reference resolution; a pixel
 is an error when its grey value differs by more than 20 / 255 (thesis 3.5.4).
 The thesis reports 20.63 % (N = 64) down to 3.96 % (N = 160) against N = 192.
 
-    python experiments/screen_error.py --quick --out out/screen_error
+    python -m experiments.screen_error --quick --out out/screen_error
 """
 
 from __future__ import annotations
@@ -19,13 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import machine, write_table  # noqa: E402
-
-from jaxgfx import terrain as T  # noqa: E402
-from jaxgfx.camera import camera_from_degrees  # noqa: E402
-from jaxgfx.compose import Frame, background, composite, lambert  # noqa: E402
-from jaxgfx.raster import rasterize  # noqa: E402
+from experiments.common import machine, write_table
+from jaxgfx import terrain as T
+from jaxgfx.camera import camera_from_degrees
+from jaxgfx.compose import Frame, background, composite, lambert
+from jaxgfx.raster import rasterize
 
 THRESHOLD = 20  # grey levels out of 255 (thesis 3.5.4)
 

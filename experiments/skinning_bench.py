@@ -9,23 +9,20 @@ influences per vertex.  Compile time is reported apart; steady-state times are t
 interleaved repeats (all methods take turns, so machine load hits them alike) and the ratio to LBS
 is measured in the same run.
 
-    python experiments/skinning_bench.py --quick --out out/skinning_bench
+    python -m experiments.skinning_bench --quick --out out/skinning_bench
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
-import os
-import sys
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _skin_common import (  # noqa: E402
+from experiments.common import (
     cylinder,
     limb_binding,
     limb_rig,
@@ -34,8 +31,7 @@ from _skin_common import (  # noqa: E402
     random_poses,
     write_table,
 )
-
-from jaxgfx import skin  # noqa: E402
+from jaxgfx import skin
 
 SAMPLES = 32
 
