@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.checks import check_int, static_field
+
 __all__ = [
     "Camera",
     "camera_from_degrees",
@@ -77,9 +79,9 @@ class Camera:
     fov_y: jax.Array
     near: jax.Array
     far: jax.Array
-    width: int = dataclasses.field(metadata=dict(static=True), default=640)
-    height: int = dataclasses.field(metadata=dict(static=True), default=480)
-    pixel_aspect: float = dataclasses.field(metadata=dict(static=True), default=1.0)
+    width: int = static_field(640)
+    height: int = static_field(480)
+    pixel_aspect: float = static_field(1.0)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -87,21 +89,13 @@ class Camera:
         return (self.height, self.width)
 
 
-def _check_size(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be a positive int, got {type(value).__name__}")
-    if value <= 0:
-        raise ValueError(f"{name} must be a positive int, got {value}")
-    return int(value)
-
-
 def validate_camera(cam: Camera) -> Camera:
     """Checks a camera's concrete values; raises ``ValueError`` naming the field.
 
     Traced values (inside ``jit``) are skipped: validation happens before tracing.
     """
-    _check_size("width", cam.width)
-    _check_size("height", cam.height)
+    check_int("width", cam.width, low=1)
+    check_int("height", cam.height, low=1)
     pa = cam.pixel_aspect
     if isinstance(pa, bool) or not isinstance(pa, (int, float, np.integer, np.floating)):
         raise TypeError(f"camera pixel_aspect must be a float, got {type(pa).__name__}")
@@ -151,8 +145,8 @@ def camera_from_degrees(
         near: near plane distance.
         far: far plane distance.
     """
-    width = _check_size("width", width)
-    height = _check_size("height", height)
+    width = check_int("width", width, low=1)
+    height = check_int("height", height, low=1)
     pos = np.asarray(position, dtype=np.float32)
     if pos.shape != (3,):
         raise ValueError(f"position must have shape (3,), got {pos.shape}")
@@ -374,7 +368,7 @@ def orbit_cameras(
         A batched :class:`Camera` whose leaves have a leading axis of size n,
         ready for ``jax.vmap``.
     """
-    n = _check_size("n", n)
+    n = check_int("n", n, low=1)
     if not radius > 0:
         raise ValueError(f"radius must be > 0, got {radius}")
     c = np.asarray(center, np.float64)

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx import post, raycast, skin, terrain, voxels
+from jaxgfx._src.checks import static_field
 from jaxgfx.camera import Camera
 from jaxgfx.compose import Frame, background, composite, fog, lambert
 from jaxgfx.raster import rasterize, validate_mesh, vertex_normals
@@ -204,8 +205,8 @@ class CharacterPass:
     color: jax.Array
     scale: jax.Array
     offset: jax.Array
-    samples: int = dataclasses.field(metadata=dict(static=True), default=32)
-    styles: str = dataclasses.field(metadata=dict(static=True), default="both")
+    samples: int = static_field(32)
+    styles: str = static_field("both")
 
 
 def demo_character_pass(offset=(5.0, 0.0, 4.0), scale: float = 1.4) -> CharacterPass:
@@ -315,7 +316,7 @@ class VoxelPass:
     rle: voxels.RLEVolume
     origin: jax.Array
     voxel_size: jax.Array
-    num_planes: int | None = dataclasses.field(metadata=dict(static=True), default=None)
+    num_planes: int | None = static_field(None)
 
 
 def demo_forest(*, key: jax.Array, origin=(-26.9, 0.0, 15.0), voxel_size: float = 0.14):

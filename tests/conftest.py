@@ -26,3 +26,29 @@ def raster_jit():
     from jaxgfx.raster import rasterize
 
     return jax.jit(rasterize, static_argnames=("cull_backfaces", "block", "chunk"))
+
+
+class CompileCounter:
+    """Counts XLA backend compilations while active (JAX's public monitoring events)."""
+
+    EVENT = "/jax/core/compile/backend_compile_duration"
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def _listener(self, event: str, duration: float, **kwargs) -> None:
+        if event == self.EVENT:
+            self.count += 1
+
+    def __enter__(self) -> CompileCounter:
+        jax.monitoring.register_event_duration_secs_listener(self._listener)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        jax.monitoring.unregister_event_duration_listener(self._listener)
+
+
+@pytest.fixture
+def compile_counter() -> type[CompileCounter]:
+    """``with compile_counter() as c: ...; assert c.count == 0`` checks nothing recompiled."""
+    return CompileCounter
