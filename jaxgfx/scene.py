@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx import post, raycast, skin, terrain, voxels
+from jaxgfx import post, raycast, skin, terrain
 from jaxgfx.camera import Camera
 from jaxgfx.compose import Frame, background, composite, fog, lambert
 from jaxgfx.raster import rasterize, validate_mesh, vertex_normals
@@ -324,7 +324,7 @@ class VoxelPass:
         num_planes: static ray-buffer planes (None: the renderer's default).
     """
 
-    rle: voxels.RLEVolume
+    rle: raycast.RLEVolume
     origin: jax.Array
     voxel_size: jax.Array
     num_planes: int | None = dataclasses.field(metadata=dict(static=True), default=None)
@@ -332,12 +332,12 @@ class VoxelPass:
 
 def demo_forest(*, key: jax.Array, origin=(-26.9, 0.0, 15.0), voxel_size: float = 0.14):
     """A row of procedural voxel trees (4.3.3) as instances of one RLE object (4.4.6)."""
-    tree = voxels.procedural_tree(64, key=key, depth=4)
-    rle = voxels.encode_rle(tree, levels=2)
+    tree = raycast.procedural_tree(64, key=key, depth=4)
+    rle = raycast.encode_rle(tree, levels=2)
     tiles = [(0, 0), (1, 1), (2, 0), (3, 1), (4, 0), (5, 1)]
-    forest = voxels.place_instances(rle, tiles, (6, 2))
+    forest = raycast.place_instances(rle, tiles, (6, 2))
     return VoxelPass(
-        voxels.as_jax(forest),
+        raycast.as_jax(forest),
         jnp.asarray(origin, jnp.float32),
         jnp.float32(voxel_size),
     )

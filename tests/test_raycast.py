@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxgfx import raycast as RC
-from jaxgfx import voxels as V
+from jaxgfx import raycast as V
 from jaxgfx.camera import camera_from_degrees, look_at, project, stack_cameras, supersampled
 
 W, H = 96, 72

@@ -8,18 +8,18 @@ import jax
 import numpy as np
 import pytest
 
-from jaxgfx import voxels as V
+from jaxgfx import raycast as V
 
 
 def _random_voxels(rng, shape, n):
     c = np.stack([rng.integers(0, s, n) for s in shape], axis=1)
     col = rng.integers(0, 256, (n, 3)).astype(np.uint8)
-    return V._make_voxels(c, col, shape)
+    return V.make_voxels(c, col, shape)
 
 
 def _same(a: V.Voxels, b: V.Voxels):
-    ka = V._keys(a.coords, a.shape)
-    kb = V._keys(b.coords, b.shape)
+    ka = np.ravel_multi_index(np.asarray(a.coords, np.int64).T, a.shape)
+    kb = np.ravel_multi_index(np.asarray(b.coords, np.int64).T, b.shape)
     ia, ib = np.argsort(ka), np.argsort(kb)
     assert a.shape == b.shape
     np.testing.assert_array_equal(ka[ia], kb[ib])
@@ -56,7 +56,7 @@ def test_long_runs_and_long_skips_split():
     ys = list(range(H - 1, H - 201, -1)) + list(range(H - 201 - 2500, H - 201 - 2505, -1))
     coords = np.array([[0, y, 0] for y in ys])
     colors = (np.arange(len(ys))[:, None] * [1, 3, 7] % 256).astype(np.uint8)
-    vox = V._make_voxels(coords, colors, (1, H, 1))
+    vox = V.make_voxels(coords, colors, (1, H, 1))
     rle = V.encode_rle(vox)
     _same(V.decode_rle(rle), vox)
     els = [int(rle.first[0])] + [int(e) for e in rle.elements[: int(rle.count[0]) - 1]]
@@ -71,7 +71,7 @@ def test_long_runs_and_long_skips_split():
 
 
 def test_first_element_inline_and_layout():
-    vox = V._make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
+    vox = V.make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
     rle = V.encode_rle(vox)
     # Column (0, 0): skip 0 draw 2, then skip 2 draw 1 (Fig. 4.11 layout).
     assert int(rle.first[0]) == (0 << 6) | 2
@@ -82,7 +82,7 @@ def test_first_element_inline_and_layout():
 
 
 def test_bits_per_voxel_accounting():
-    vox = V._make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
+    vox = V.make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
     st = V.rle_stats(V.encode_rle(vox))
     # 4 pointer-map entries x 64 bits + 1 stored element x 16 bits, over 4 voxels.
     assert st["bits_per_voxel"] == pytest.approx((4 * 64 + 16) / 4)
@@ -191,7 +191,7 @@ def test_place_instances_shares_columns():
     assert scene.count is rle.count  # not even the pointer map is copied
     assert scene.shape == (12, 10, 18)
     got = V.decode_rle(scene)
-    want = V._make_voxels(
+    want = V.make_voxels(
         np.concatenate([vox.coords + [t[0] * 4, 0, t[1] * 6] for t in tiles]),
         np.concatenate([vox.colors] * 3),
         (12, 10, 18),
