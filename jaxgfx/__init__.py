@@ -91,10 +91,10 @@ from jaxgfx.raycast import DRAW_BITS as DRAW_BITS
 from jaxgfx.raycast import MAX_DRAW as MAX_DRAW
 from jaxgfx.raycast import MAX_SKIP as MAX_SKIP
 from jaxgfx.raycast import MAX_VOXELS as MAX_VOXELS
-from jaxgfx.raycast import RENDER_RLE_STATIC as RENDER_RLE_STATIC
 from jaxgfx.raycast import SKIP_BITS as SKIP_BITS
 from jaxgfx.raycast import PlaneParams as PlaneParams
 from jaxgfx.raycast import RenderOutput as RenderOutput
+from jaxgfx.raycast import RenderSettings as RenderSettings
 from jaxgfx.raycast import RLEVolume as RLEVolume
 from jaxgfx.raycast import Segments as Segments
 from jaxgfx.raycast import Voxels as Voxels

@@ -113,14 +113,17 @@ def cmd_render_voxels(args) -> int:
         out, _ = fn(jnp.asarray(occ), jnp.asarray(col), cam)
         stats = {}
     else:
-        fn = jax.jit(RC.render_rle, static_argnames=RC.RENDER_RLE_STATIC)
-        out = fn(
-            RC.as_jax(rle),
-            cam,
-            lod_distance=args.lod if args.lod > 0 else jnp.inf,
+        fn = jax.jit(RC.render_rle)
+        settings = RC.RenderSettings(
             refine_steps=0 if args.thesis else args.refine,
             oversample=1.0 if args.thesis else args.oversample,
             neighbors=0 if args.thesis else 1,
+        )
+        out = fn(
+            RC.as_jax(rle),
+            cam,
+            settings=settings,
+            lod_distance=args.lod if args.lod > 0 else jnp.inf,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
     color, depth = antialias(out.color, out.depth, args.aa)

@@ -18,7 +18,7 @@ A reader's table of contents: thesis section -> function (implementation in
     (Tables 4.1, 4.2), :func:`place_instances` (shared columns), :func:`as_jax`, and
     :func:`empty_space_distance` (not in the thesis) (``encode``).
 4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)``.
-4.5 Rendering: :func:`render_rle` (static arguments ``RENDER_RLE_STATIC``), giving a
+4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
     :func:`check_camera_outside` (``render``).
 4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3) (``planes``).
@@ -42,7 +42,7 @@ JAX pytree the renderer consumes.  Renderers take the shared
 Example::
 
     rle = as_jax(encode_rle(procedural_tree(64, key=jax.random.key(0)), levels=2))
-    out = jax.jit(render_rle, static_argnames=RENDER_RLE_STATIC)(rle, cam, oversample=1.0)
+    out = jax.jit(render_rle)(rle, cam, settings=RenderSettings(oversample=1.0))
 """
 
 from __future__ import annotations
@@ -74,8 +74,8 @@ from jaxgfx._src.voxel.planes import screen_segments as screen_segments
 from jaxgfx._src.voxel.planes import vanishing_point as vanishing_point
 from jaxgfx._src.voxel.reference import dda_ray_3d as dda_ray_3d
 from jaxgfx._src.voxel.reference import reference_render as reference_render
-from jaxgfx._src.voxel.render import RENDER_RLE_STATIC as RENDER_RLE_STATIC
 from jaxgfx._src.voxel.render import RenderOutput as RenderOutput
+from jaxgfx._src.voxel.render import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outside
 from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
@@ -133,7 +133,7 @@ __all__ = [
     "as_jax",
     "downsample_voxels",
     # 4.5 rendering
-    "RENDER_RLE_STATIC",
+    "RenderSettings",
     "RenderOutput",
     "render_rle",
     "default_num_planes",

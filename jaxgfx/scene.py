@@ -351,7 +351,9 @@ def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
         near=cam.near / vp.voxel_size,
         far=cam.far / vp.voxel_size,
     )
-    out = raycast.render_rle(vp.rle, local, num_planes=vp.num_planes)
+    out = raycast.render_rle(
+        vp.rle, local, settings=raycast.RenderSettings(num_planes=vp.num_planes)
+    )
     normals = post.screen_space_normals(local, out.depth, key=key, samples=8)
     color = post.shade(out.color, normals)
     hit = jnp.isfinite(out.depth)

@@ -3,8 +3,8 @@
 One frame: the vanishing point and the four screen segments (:mod:`.planes`), the
 traversal of every plane into its ray-buffer column (:mod:`.traverse`), the warp to
 the screen (:mod:`.warp`) and, for pixels the warp is unsure of, a short exact
-re-walk.  Its static arguments (sizes and switches that fix the program) are named
-in ``RENDER_RLE_STATIC``.
+re-walk.  Its static settings (sizes and switches that fix the program) are one
+:class:`RenderSettings`.
 
 All functions take the shared :class:`jaxgfx.camera.Camera`; depth is the camera-space
 z (distance along the view axis), ``+inf`` where nothing was hit.  Scene coordinates
@@ -13,6 +13,7 @@ are voxel units, y up.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -20,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.checks import check_float, check_int, static_field
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_planes
@@ -28,7 +30,7 @@ from jaxgfx.camera import Camera
 
 __all__ = [
     "RenderOutput",
-    "RENDER_RLE_STATIC",
+    "RenderSettings",
     "default_num_planes",
     "default_max_steps",
     "render_rle",
@@ -63,42 +65,86 @@ def default_max_steps(rle) -> int:
     return int(rle.shape[0] + rle.shape[2] + 2)
 
 
-RENDER_RLE_STATIC = (
-    "num_planes",
-    "max_steps",
-    "oversample",
-    "buffer_size",
-    "refine_steps",
-    "neighbors",
-    "refine_budget",
-    "elements_per_step",
-)
-"""The static arguments of :func:`render_rle`: ``jax.jit(render_rle, static_argnames=...)``."""
+def _optional_int(name: str, value, low: int) -> int | None:
+    return None if value is None else check_int(name, value, low=low)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class RenderSettings:
+    """The static settings of :func:`render_rle`: sizes and switches that fix the program.
+
+    A pytree without leaves: every field is static, so ``jax.jit(render_rle)`` needs
+    no ``static_argnames`` and compiles once per distinct settings (the fields are
+    part of the cache key, like shapes).  Frozen, so one instance can be shared.
+    See :func:`render_rle` for what the defaults measure.
+
+    Attributes:
+        num_planes: ray-buffer plane budget (None: :func:`default_num_planes`).
+        max_steps: bound on the 2-D DDA cells per plane (None: :func:`default_max_steps`).
+        oversample: planes per pixel on each segment's far border (1 = thesis
+            Eq. 4.4, default 2).
+        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
+            see ``stats["buffer_overflow"]``.
+        refine_steps: if > 0 (default 16), pixels whose ray entered no candidate
+            element re-walk their own ray that many voxels from just before the
+            neighbourhood's depth (not in the thesis).
+        neighbors: adjacent planes on each side whose texels the warp tests against
+            the pixel's ray (default 1; 0 = thesis).
+        refine_budget: largest number of re-walked pixels (None: ``W H / 32``); see
+            ``stats["refine_overflow"]``.
+        elements_per_step: elements of a column handled per loop step (speed only;
+            default 4).
+
+    Raises:
+        TypeError: a count that is not an int, an ``oversample`` that is not a number.
+        ValueError: a count below its least useful value, ``oversample <= 0``.
+    """
+
+    num_planes: int | None = static_field(None)
+    max_steps: int | None = static_field(None)
+    oversample: float = static_field(2.0)
+    buffer_size: int | None = static_field(None)
+    refine_steps: int = static_field(16)
+    neighbors: int = static_field(1)
+    refine_budget: int | None = static_field(None)
+    elements_per_step: int = static_field(4)
+
+    def __post_init__(self):
+        # Normalised to Python ints / floats: equal settings hash alike (one compile).
+        fields = dict(
+            num_planes=_optional_int("num_planes", self.num_planes, 1),
+            max_steps=_optional_int("max_steps", self.max_steps, 1),
+            oversample=check_float("oversample", self.oversample),
+            buffer_size=_optional_int("buffer_size", self.buffer_size, 1),
+            refine_steps=check_int("refine_steps", self.refine_steps, low=0),
+            neighbors=check_int("neighbors", self.neighbors, low=0),
+            refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
+            elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
+        )
+        if fields["oversample"] <= 0:
+            raise ValueError(f"oversample must be > 0, got {fields['oversample']}")
+        for name, value in fields.items():
+            object.__setattr__(self, name, value)
 
 
 def render_rle(
     rle,
     cam: Camera,
     *,
-    num_planes: int | None = None,
-    max_steps: int | None = None,
+    settings: RenderSettings | None = None,
     lod_distance=jnp.inf,
-    oversample: float = 2.0,
-    buffer_size: int | None = None,
-    refine_steps: int = 16,
-    neighbors: int = 1,
-    refine_budget: int | None = None,
-    elements_per_step: int = 4,
 ) -> RenderOutput:
-    """Renders an :class:`~jaxgfx.voxels.RLEVolume` with the per-plane ray caster (4.5).
+    """Renders an :class:`~jaxgfx.raycast.RLEVolume` with the per-plane ray caster (4.5).
 
-    jit with ``static_argnames=RENDER_RLE_STATIC``; vmap over a batched
-    camera (same resolution) renders many views.
+    ``jax.jit(render_rle)`` needs no static arguments (the :class:`RenderSettings`
+    are static pytree metadata); vmap over a batched camera (same resolution)
+    renders many views.
 
     The defaults are the settings the acceptance test (agreement with the
     per-pixel 3-D DDA of :func:`reference_render`: depth within one voxel on
     >= 99 % and the same colour on >= 98 % of pixels) is measured with.  The
-    thesis method alone is ``oversample=1, neighbors=0, refine_steps=0``: it
+    thesis method alone is ``RenderSettings(oversample=1, neighbors=0, refine_steps=0)``: it
     samples each pixel from its nearest plane, and where columns project to
     less than a plane spacing (far or grazing surfaces) it shows a
     neighbouring voxel.  The defaults add (a) two planes per border pixel,
@@ -110,33 +156,22 @@ def render_rle(
     processed once per plane, never per pixel.
 
     Args:
-        rle: the scene (use :func:`jaxgfx.voxels.as_jax` first for speed).
+        rle: the scene (use :func:`~jaxgfx.raycast.as_jax` first for speed).
         cam: camera; must not sit inside a solid voxel (see
             :func:`check_camera_outside`).
-        num_planes: static ray-buffer plane budget (default
-            :func:`default_num_planes`).
-        max_steps: static bound on the 2-D DDA cells per plane (default
-            :func:`default_max_steps`).
+        settings: static :class:`RenderSettings` (None: the defaults).
         lod_distance: horizontal distance where mip level 1 starts, level ``l``
-            at ``lod_distance * 2 ** (l - 1)``; ``inf`` uses level 0 only.
-        oversample: planes per pixel on each segment's far border (1 = thesis
-            Eq. 4.4, default 2).
-        buffer_size: static drawn elements kept per plane (default
-            ``max(64, max(W, H) // 2)``); see ``stats["buffer_overflow"]``.
-        refine_steps: static; if > 0 (default 16), pixels whose ray entered no
-            candidate element re-walk their own ray that many voxels from just
-            before the neighbourhood's depth (not in the thesis).
-        neighbors: static number of adjacent planes on each side whose texels
-            the warp tests against the pixel's ray (default 1; 0 = thesis).
-        refine_budget: static largest number of re-walked pixels (default
-            ``W H / 32``); see ``stats["refine_overflow"]``.
-        elements_per_step: static elements of a column handled per loop step
-            (speed only; default 4).
+            at ``lod_distance * 2 ** (l - 1)``; ``inf`` uses level 0 only
+            (traced: changing it does not recompile).
 
     Returns:
         :class:`RenderOutput` with colour (H, W, 3), depth (H, W) and counters
         (``refined``: pixels that asked for a re-walk).
     """
+    s = RenderSettings() if settings is None else settings
+    num_planes, max_steps, oversample = s.num_planes, s.max_steps, s.oversample
+    buffer_size, refine_steps, neighbors = s.buffer_size, s.refine_steps, s.neighbors
+    refine_budget, elements_per_step = s.refine_budget, s.elements_per_step
     if max(cam.width, cam.height) >= HALF_LIMIT:
         raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
     if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
