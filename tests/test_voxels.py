@@ -227,6 +227,9 @@ def test_scene_save_load(tmp_path):
 # ---------------------------------------------------------------------------
 
 
+# The counts are each file's own header field numvoxs (int32 at byte 28) and the shapes
+# its xsiz, zsiz, ysiz (int32s at bytes 4, 12, 8; Voxlap's z is our y), as listed in
+# ../shared/data/README.md; the test also reads them from the header itself.
 @pytest.mark.parametrize(
     "name,count,shape",
     [
@@ -236,7 +239,11 @@ def test_scene_save_load(tmp_path):
     ],
 )
 def test_kv6_counts(data_dir, name, count, shape):
-    vox = V.load_kv6(data_dir / "voxlap" / f"{name}.kv6")
+    path = data_dir / "voxlap" / f"{name}.kv6"
+    xs, ys, zs = struct.unpack_from("<iii", path.read_bytes(), 4)
+    (numvoxs,) = struct.unpack_from("<i", path.read_bytes(), 28)
+    assert numvoxs == count and (xs, zs, ys) == shape
+    vox = V.load_kv6(path)
     assert len(vox.coords) == count and vox.shape == shape
     _same(V.decode_rle(V.encode_rle(vox)), vox)
 
@@ -252,9 +259,31 @@ def test_kv6_truncated_and_bad_magic(data_dir, tmp_path):
         V.load_kv6(p)
 
 
+def _vxl_colour_count(data: bytes) -> int:
+    """Coloured voxels of a .vxl by Voxlap's own sequential span walk (vxlform.txt).
+
+    A span header is ``[N, S, E, A]``: a span with N > 0 is N words long and holds N - 1
+    colours; the last span of a column (N = 0) holds E - S + 1 colours.
+    """
+    pos, total = 108, 0
+    while pos < len(data):
+        n, s, e = data[pos], data[pos + 1], data[pos + 2]
+        if n == 0:
+            total += e - s + 1
+            pos += 4 * (e - s + 2)
+        else:
+            total += n - 1
+            pos += 4 * n
+    assert pos == len(data)
+    return total
+
+
 def test_vxl_counts_and_round_trip(data_dir):
-    vox = V.load_vxl(data_dir / "voxlap" / "untitled.vxl")
-    assert len(vox.coords) == 1_852_925
+    path = data_dir / "voxlap" / "untitled.vxl"
+    vox = V.load_vxl(path)
+    # 1,477,216 top + 375,709 bottom colours in 1,253,394 spans of 1024^2 columns
+    # (../shared/data/README.md); recounted here by the plain span walk.
+    assert len(vox.coords) == 1_852_925 == _vxl_colour_count(path.read_bytes())
     assert vox.shape == (1024, 256, 1024)
     # Round trip on a crop keeps the test quick.
     crop = V.crop_voxels(vox, (300, 0, 300), (428, 256, 428))
