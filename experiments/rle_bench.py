@@ -40,16 +40,16 @@ import numpy as np
 
 from jaxgfx import post
 from jaxgfx import raycast as RC
-from jaxgfx import voxels as V
+from jaxgfx import raycast as V
 from jaxgfx.camera import look_at, supersampled
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
-render = jax.jit(RC.render_rle, static_argnames=RC.RENDER_RLE_STATIC)
+render = jax.jit(RC.render_rle)
 reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 # The thesis method alone: one plane per border pixel (Eq. 4.4), each pixel
 # reads its nearest ray-buffer texel, no per-pixel re-walk.
-THESIS = dict(oversample=1.0, neighbors=0, refine_steps=0)
+THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0)
 # Mip level 1 starts here (voxels), level l at LOD_DISTANCE * 2^(l-1).
 LOD_DISTANCE = 96.0
 
@@ -280,7 +280,7 @@ def run(args):
             )
             if w * h <= base_limit:
                 if not quick:
-                    f_th = lambda c, r=rle: render(r, c, **THESIS)  # noqa: E731
+                    f_th = lambda c, r=rle: render(r, c, settings=THESIS)  # noqa: E731
                     _, t_th, _ = timed(f_th, cams, reps)
                     row["thesis_ms"] = round(1e3 * t_th, 1)
                 f_ref = lambda c, o=occ, k=col: reference(o, k, c)[0]  # noqa: E731
@@ -319,7 +319,7 @@ def run(args):
                 df, cf, n = agreement(ours.depth, ours.color, ref.depth, ref.color)
                 dp = cp = None  # quick: no extra compile of the thesis path
                 if not quick:
-                    thesis = render(rle, cam, **THESIS)
+                    thesis = render(rle, cam, settings=THESIS)
                     dp, cp, _ = agreement(thesis.depth, thesis.color, ref.depth, ref.color)
                 r = dict(
                     scene=name,

@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxgfx import post
 from jaxgfx import raycast as RC
-from jaxgfx import voxels as V
+from jaxgfx import raycast as V
 from jaxgfx.camera import look_at, supersampled
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx import post, raycast, skin, terrain, voxels
+from jaxgfx import post, raycast, skin, terrain
 from jaxgfx._src.checks import static_field
 from jaxgfx.camera import Camera
 from jaxgfx.compose import Frame, background, composite, fog, lambert
@@ -313,7 +313,7 @@ class VoxelPass:
         num_planes: static ray-buffer planes (None: the renderer's default).
     """
 
-    rle: voxels.RLEVolume
+    rle: raycast.RLEVolume
     origin: jax.Array
     voxel_size: jax.Array
     num_planes: int | None = static_field(None)
@@ -321,12 +321,12 @@ class VoxelPass:
 
 def demo_forest(*, key: jax.Array, origin=(-26.9, 0.0, 15.0), voxel_size: float = 0.14):
     """A row of procedural voxel trees (4.3.3) as instances of one RLE object (4.4.6)."""
-    tree = voxels.procedural_tree(64, key=key, depth=4)
-    rle = voxels.encode_rle(tree, levels=2)
+    tree = raycast.procedural_tree(64, key=key, depth=4)
+    rle = raycast.encode_rle(tree, levels=2)
     tiles = [(0, 0), (1, 1), (2, 0), (3, 1), (4, 0), (5, 1)]
-    forest = voxels.place_instances(rle, tiles, (6, 2))
+    forest = raycast.place_instances(rle, tiles, (6, 2))
     return VoxelPass(
-        voxels.as_jax(forest),
+        raycast.as_jax(forest),
         jnp.asarray(origin, jnp.float32),
         jnp.float32(voxel_size),
     )
@@ -340,7 +340,9 @@ def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
         near=cam.near / vp.voxel_size,
         far=cam.far / vp.voxel_size,
     )
-    out = raycast.render_rle(vp.rle, local, num_planes=vp.num_planes)
+    out = raycast.render_rle(
+        vp.rle, local, settings=raycast.RenderSettings(num_planes=vp.num_planes)
+    )
     normals = post.screen_space_normals(local, out.depth, key=key, samples=8)
     color = post.shade(out.color, normals)
     hit = jnp.isfinite(out.depth)

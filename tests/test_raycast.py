@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxgfx import raycast as RC
-from jaxgfx import voxels as V
+from jaxgfx import raycast as V
 from jaxgfx.camera import camera_from_degrees, look_at, project, stack_cameras, supersampled
 
 W, H = 96, 72
@@ -22,7 +22,7 @@ COLOR_AGREE = 0.98
 DEPTH_AGREE_PLAIN = 0.975
 # render_rle's settings for the thesis method alone: one plane per border
 # pixel (Eq. 4.4), nearest texel, no per-pixel re-walk.
-THESIS = dict(oversample=1.0, neighbors=0, refine_steps=0)
+THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0)
 
 
 def _scene():
@@ -54,7 +54,16 @@ CAMERAS = [
     ("inside", camera_from_degrees([3, 12, 20], 135, -25, 0, 70, W, H)),
 ]
 
-render = jax.jit(RC.render_rle, static_argnames=RC.RENDER_RLE_STATIC)
+# One entry per trace of `render`: a new entry means a new compilation.
+_TRACES: list[None] = []
+
+
+def _render_traced(*args, **kwargs):
+    _TRACES.append(None)
+    return RC.render_rle(*args, **kwargs)
+
+
+render = jax.jit(_render_traced)
 reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 
 
@@ -150,7 +159,7 @@ def test_matches_reference_dda(scene, name, cam):
     assert n > 800, f"{name}: too few hit pixels for a meaningful test"
     assert d_ok >= DEPTH_AGREE, f"{name}: depth agreement {d_ok:.4f}"
     assert c_ok >= COLOR_AGREE, f"{name}: colour agreement {c_ok:.4f}"
-    plain = render(rle, cam, **THESIS)
+    plain = render(rle, cam, settings=THESIS)
     d_ok, c_ok, _ = _agreement(plain, ref)
     assert d_ok >= DEPTH_AGREE_PLAIN, f"{name}: thesis-path depth agreement {d_ok:.4f}"
     for o in (out, plain):
@@ -194,10 +203,10 @@ def test_vmap_over_cameras_and_no_recompile(scene):
             np.asarray(batched.color[k]), np.asarray(single.color), atol=1e-6
         )
     # Frames of one size share one compilation.
-    before = render._cache_size()
+    before = len(_TRACES)
     render(rle, CAMERAS[0][1], lod_distance=jnp.inf)
     render(rle, CAMERAS[4][1], lod_distance=jnp.inf)
-    assert render._cache_size() == before
+    assert len(_TRACES) == before
 
 
 def test_lod_level_matches_downsampled_reference(scene):
@@ -255,8 +264,8 @@ def test_even_oversample_keeps_pixel_aligned_planes(scene):
     # one instead of sampling a quarter pixel off.
     _, rle, _, _ = scene
     cam = CAMERAS[0][1]
-    one = render(rle, cam, **THESIS)
-    two = render(rle, cam, oversample=2.0, neighbors=0, refine_steps=0)
+    one = render(rle, cam, settings=THESIS)
+    two = render(rle, cam, settings=RC.RenderSettings(oversample=2.0, neighbors=0, refine_steps=0))
     np.testing.assert_allclose(np.asarray(two.depth), np.asarray(one.depth), rtol=1e-5)
     np.testing.assert_array_equal(np.asarray(two.color), np.asarray(one.color))
 
@@ -268,8 +277,8 @@ def test_neighbor_candidates_never_in_front_and_step_width_invariant(scene):
     vox, rle, occ, col = scene
     cam = CAMERAS[2][1]
     ref, _ = reference(occ, col, cam)
-    a = render(rle, cam, refine_steps=0, elements_per_step=1)
-    b = render(rle, cam, refine_steps=0)
+    a = render(rle, cam, settings=RC.RenderSettings(refine_steps=0, elements_per_step=1))
+    b = render(rle, cam, settings=RC.RenderSettings(refine_steps=0))
     d_ref, d_a = np.asarray(ref.depth), np.asarray(a.depth)
     both = np.isfinite(d_ref) & np.isfinite(d_a)
     assert np.all(d_a[both] >= d_ref[both] - 1e-3 * np.maximum(1.0, d_ref[both]))

@@ -8,18 +8,18 @@ import jax
 import numpy as np
 import pytest
 
-from jaxgfx import voxels as V
+from jaxgfx import raycast as V
 
 
 def _random_voxels(rng, shape, n):
     c = np.stack([rng.integers(0, s, n) for s in shape], axis=1)
     col = rng.integers(0, 256, (n, 3)).astype(np.uint8)
-    return V._make_voxels(c, col, shape)
+    return V.make_voxels(c, col, shape)
 
 
 def _same(a: V.Voxels, b: V.Voxels):
-    ka = V._keys(a.coords, a.shape)
-    kb = V._keys(b.coords, b.shape)
+    ka = np.ravel_multi_index(np.asarray(a.coords, np.int64).T, a.shape)
+    kb = np.ravel_multi_index(np.asarray(b.coords, np.int64).T, b.shape)
     ia, ib = np.argsort(ka), np.argsort(kb)
     assert a.shape == b.shape
     np.testing.assert_array_equal(ka[ia], kb[ib])
@@ -56,7 +56,7 @@ def test_long_runs_and_long_skips_split():
     ys = list(range(H - 1, H - 201, -1)) + list(range(H - 201 - 2500, H - 201 - 2505, -1))
     coords = np.array([[0, y, 0] for y in ys])
     colors = (np.arange(len(ys))[:, None] * [1, 3, 7] % 256).astype(np.uint8)
-    vox = V._make_voxels(coords, colors, (1, H, 1))
+    vox = V.make_voxels(coords, colors, (1, H, 1))
     rle = V.encode_rle(vox)
     _same(V.decode_rle(rle), vox)
     els = [int(rle.first[0])] + [int(e) for e in rle.elements[: int(rle.count[0]) - 1]]
@@ -71,7 +71,7 @@ def test_long_runs_and_long_skips_split():
 
 
 def test_first_element_inline_and_layout():
-    vox = V._make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
+    vox = V.make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
     rle = V.encode_rle(vox)
     # Column (0, 0): skip 0 draw 2, then skip 2 draw 1 (Fig. 4.11 layout).
     assert int(rle.first[0]) == (0 << 6) | 2
@@ -82,7 +82,7 @@ def test_first_element_inline_and_layout():
 
 
 def test_bits_per_voxel_accounting():
-    vox = V._make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
+    vox = V.make_voxels([[0, 4, 0], [0, 3, 0], [0, 0, 0], [1, 4, 1]], np.zeros((4, 3)), (2, 5, 2))
     st = V.rle_stats(V.encode_rle(vox))
     # 4 pointer-map entries x 64 bits + 1 stored element x 16 bits, over 4 voxels.
     assert st["bits_per_voxel"] == pytest.approx((4 * 64 + 16) / 4)
@@ -191,7 +191,7 @@ def test_place_instances_shares_columns():
     assert scene.count is rle.count  # not even the pointer map is copied
     assert scene.shape == (12, 10, 18)
     got = V.decode_rle(scene)
-    want = V._make_voxels(
+    want = V.make_voxels(
         np.concatenate([vox.coords + [t[0] * 4, 0, t[1] * 6] for t in tiles]),
         np.concatenate([vox.colors] * 3),
         (12, 10, 18),
@@ -227,6 +227,9 @@ def test_scene_save_load(tmp_path):
 # ---------------------------------------------------------------------------
 
 
+# The counts are each file's own header field numvoxs (int32 at byte 28) and the shapes
+# its xsiz, zsiz, ysiz (int32s at bytes 4, 12, 8; Voxlap's z is our y), as listed in
+# ../shared/data/README.md; the test also reads them from the header itself.
 @pytest.mark.parametrize(
     "name,count,shape",
     [
@@ -236,7 +239,11 @@ def test_scene_save_load(tmp_path):
     ],
 )
 def test_kv6_counts(data_dir, name, count, shape):
-    vox = V.load_kv6(data_dir / "voxlap" / f"{name}.kv6")
+    path = data_dir / "voxlap" / f"{name}.kv6"
+    xs, ys, zs = struct.unpack_from("<iii", path.read_bytes(), 4)
+    (numvoxs,) = struct.unpack_from("<i", path.read_bytes(), 28)
+    assert numvoxs == count and (xs, zs, ys) == shape
+    vox = V.load_kv6(path)
     assert len(vox.coords) == count and vox.shape == shape
     _same(V.decode_rle(V.encode_rle(vox)), vox)
 
@@ -252,9 +259,31 @@ def test_kv6_truncated_and_bad_magic(data_dir, tmp_path):
         V.load_kv6(p)
 
 
+def _vxl_colour_count(data: bytes) -> int:
+    """Coloured voxels of a .vxl by Voxlap's own sequential span walk (vxlform.txt).
+
+    A span header is ``[N, S, E, A]``: a span with N > 0 is N words long and holds N - 1
+    colours; the last span of a column (N = 0) holds E - S + 1 colours.
+    """
+    pos, total = 108, 0
+    while pos < len(data):
+        n, s, e = data[pos], data[pos + 1], data[pos + 2]
+        if n == 0:
+            total += e - s + 1
+            pos += 4 * (e - s + 2)
+        else:
+            total += n - 1
+            pos += 4 * n
+    assert pos == len(data)
+    return total
+
+
 def test_vxl_counts_and_round_trip(data_dir):
-    vox = V.load_vxl(data_dir / "voxlap" / "untitled.vxl")
-    assert len(vox.coords) == 1_852_925
+    path = data_dir / "voxlap" / "untitled.vxl"
+    vox = V.load_vxl(path)
+    # 1,477,216 top + 375,709 bottom colours in 1,253,394 spans of 1024^2 columns
+    # (../shared/data/README.md); recounted here by the plain span walk.
+    assert len(vox.coords) == 1_852_925 == _vxl_colour_count(path.read_bytes())
     assert vox.shape == (1024, 256, 1024)
     # Round trip on a crop keeps the test quick.
     crop = V.crop_voxels(vox, (300, 0, 300), (428, 256, 428))
@@ -298,16 +327,12 @@ def test_volumes_and_errors(data_dir, tmp_path):
 
 
 def test_cli_voxelize_and_render(tmp_path, capsys):
-    import argparse
     import json
 
-    from jaxgfx import _cli_voxels
+    from jaxgfx.cli import main
 
-    parser = argparse.ArgumentParser()
-    _cli_voxels.register(parser.add_subparsers())
     scene = tmp_path / "tree.npz"
-    args = parser.parse_args(["voxelize", "tree", "--resolution", "16", "--out", str(scene)])
-    assert args.func(args) == 0
+    assert main(["voxelize", "tree", "--resolution", "16", "--out", str(scene)]) == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     vox = V.load_scene(scene)
     assert line["voxels"] == len(vox.coords) > 0
@@ -315,14 +340,12 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     png, dep = tmp_path / "f.png", tmp_path / "d.npy"
     argv = ["render-voxels", str(scene), "--camera", "8,6,-20,0,0", "--fov", "60",
             "--size", "24x16", "--out", str(png), "--depth", str(dep)]  # fmt: skip
-    args = parser.parse_args(argv)
-    assert args.func(args) == 0
+    assert main(argv) == 0
     depth = np.load(dep)
     assert depth.shape == (16, 24) and np.isfinite(depth).any() and not np.isnan(depth).any()
     assert png.stat().st_size > 0
     # 2x1 AA: the same view on pixels half as wide, averaged back to --size.
-    args = parser.parse_args(argv + ["--aa", "2x1", "--reference"])
-    assert args.func(args) == 0
+    assert main(argv + ["--aa", "2x1", "--reference"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["aa"] == "2x1"
     d_aa = np.load(dep)
     assert d_aa.shape == (16, 24)
@@ -331,19 +354,17 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     both = hits & hits_aa
     assert hits.sum() > 5 and both.sum() >= 0.7 * hits.sum() and hits_aa.sum() <= 2 * hits.sum()
     assert np.median(np.abs(d_aa[both] - depth[both])) < 1.0
-    with pytest.raises(SystemExit):
-        parser.parse_args(argv + ["--aa", "3x1"])
+    assert main(argv + ["--aa", "3x1"]) == 2
+    assert "error: argument --aa" in capsys.readouterr().err
     # Resolution is for meshes and trees only; it must be positive.
-    args = parser.parse_args(["voxelize", "x.kv6", "--resolution", "8", "--out", "o.npz"])
-    with pytest.raises(ValueError, match="resolution"):
-        args.func(args)
-    with pytest.raises(SystemExit):
-        parser.parse_args(["voxelize", "tree", "--resolution", "0", "--out", "o.npz"])
+    assert main(["voxelize", "x.kv6", "--resolution", "8", "--out", "o.npz"]) == 2
+    assert "error: --resolution applies to meshes" in capsys.readouterr().err
+    assert main(["voxelize", "tree", "--resolution", "0", "--out", "o.npz"]) == 2
+    assert "error: argument --resolution" in capsys.readouterr().err
     # A camera inside solid voxels is refused before rendering.
     solid = V.dense_to_voxels(np.ones((4, 4, 4), bool), np.full((4, 4, 4, 3), 7, np.uint8))
     V.save_scene(tmp_path / "solid.npz", solid)
     argv = ["render-voxels", str(tmp_path / "solid.npz"), "--camera", "0.5,3.5,2.5,0,0",
             "--size", "8x8", "--out", str(png)]  # fmt: skip
-    args = parser.parse_args(argv)
-    with pytest.raises(ValueError, match="inside a solid voxel"):
-        args.func(args)
+    assert main(argv) == 2
+    assert "inside a solid voxel" in capsys.readouterr().err

@@ -24,14 +24,14 @@ _CONVENTIONS = (
 
 
 def load_input(path: str, resolution: int | None, iso: float | None, seed: int = 0):
-    """Reads any supported input as surface :class:`~jaxgfx.voxels.Voxels`.
+    """Reads any supported input as surface :class:`~jaxgfx.raycast.Voxels`.
 
     ``tree`` (literally) makes a procedural tree from ``seed``.
     """
     import jax
     import numpy as np
 
-    from jaxgfx import voxels as V
+    from jaxgfx import raycast as V
 
     p = Path(path)
     ext = p.suffix.lower()
@@ -64,7 +64,7 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
 
 def run_voxelize(args) -> int:
     """Voxelizes an input and prints one JSON line with the memory accounting."""
-    from jaxgfx import voxels as V
+    from jaxgfx import raycast as V
 
     t0 = time.perf_counter()
     vox = load_input(args.input, args.resolution, args.iso, args.seed)
@@ -95,34 +95,36 @@ def run_render_voxels(args) -> int:
     import jax.numpy as jnp
 
     from jaxgfx import raycast as RC
-    from jaxgfx import voxels as V
     from jaxgfx.camera import camera_from_degrees, supersampled
     from jaxgfx.io import save_npy, save_png
     from jaxgfx.post import antialias
 
-    vox = V.load_scene(args.scene)
+    vox = RC.load_scene(args.scene)
     x, y, z, yaw, pitch = args.camera
     w, h = args.size
     cam = camera_from_degrees([x, y, z], yaw, pitch, 0.0, args.fov, w, h, far=args.far)
     # Anti-aliasing (4.5.6.2): the same view on a finer grid, averaged back.
     cam = supersampled(cam, args.aa)
-    rle = V.encode_rle(vox, levels=args.levels)
+    rle = RC.encode_rle(vox, levels=args.levels)
     RC.check_camera_outside(rle, cam)
     t0 = time.perf_counter()
     if args.reference:
-        occ, col = V.voxels_to_dense(vox)
+        occ, col = RC.voxels_to_dense(vox)
         fn = jax.jit(RC.reference_render)
         out, _ = fn(jnp.asarray(occ), jnp.asarray(col), cam)
         stats = {}
     else:
-        fn = jax.jit(RC.render_rle, static_argnames=RC.RENDER_RLE_STATIC)
-        out = fn(
-            V.as_jax(rle),
-            cam,
-            lod_distance=args.lod if args.lod > 0 else jnp.inf,
+        fn = jax.jit(RC.render_rle)
+        settings = RC.RenderSettings(
             refine_steps=0 if args.thesis else args.refine,
             oversample=1.0 if args.thesis else args.oversample,
             neighbors=0 if args.thesis else 1,
+        )
+        out = fn(
+            RC.as_jax(rle),
+            cam,
+            settings=settings,
+            lod_distance=args.lod if args.lod > 0 else jnp.inf,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
     color, depth = antialias(out.color, out.depth, args.aa)

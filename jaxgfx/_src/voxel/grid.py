@@ -1,0 +1,114 @@
+"""Device-side reads of an encoded volume, shared by the ray caster's passes.
+
+The pointer map (4.4.6, Fig. 4.11) is read per map cell: :func:`_map_column` finds a
+cell's column (through the instance tile map), :func:`_column_elements` decodes a
+column's RLE elements into voxel height ranges.  :func:`_dda_entry` starts the exact
+3-D DDA (Amanatides & Woo) that the per-pixel re-walk (:mod:`.warp`) and the
+reference renderer (:mod:`.reference`) share.  :func:`_safe_div` is the one guarded
+division of the chapter.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgfx._src.voxel.codec import unpack_element
+
+__all__: list[str] = []  # private helpers of the chapter's modules
+
+
+def _safe_div(a, b, eps=1e-12):
+    # Double-where: the untaken branch never sees b == 0.
+    small = jnp.abs(b) < eps
+    sign = jnp.where(b < 0, -1.0, 1.0)
+    return a / jnp.where(small, sign * eps, b)
+
+
+# ---------------------------------------------------------------------------
+# Pointer map and RLE columns (4.4.6)
+# ---------------------------------------------------------------------------
+
+
+def _prefix_sum(x):
+    """Inclusive prefix sum along the last (short, static) axis by log-step shifts.
+
+    Same result as ``jnp.cumsum``, which XLA:CPU lowers to a slow reduce-window.
+    """
+    n = x.shape[-1]
+    k = 1
+    while k < n:
+        pad = jnp.zeros(x.shape[:-1] + (k,), x.dtype)
+        x = x + jnp.concatenate([pad, x[..., : n - k]], axis=-1)
+        k *= 2
+    return x
+
+
+def _level_tables(rle):
+    """``(levels, pointer-map offset, X, Y, Z)`` of every mip level, int32 arrays."""
+    L = rle.levels
+    off = jnp.asarray(np.asarray(rle.level_offsets, np.int32))
+    sx = jnp.asarray(np.asarray([s[0] for s in rle.level_shapes], np.int32))
+    sy = jnp.asarray(np.asarray([s[1] for s in rle.level_shapes], np.int32))
+    sz = jnp.asarray(np.asarray([s[2] for s in rle.level_shapes], np.int32))
+    return L, off, sx, sy, sz
+
+
+def _map_column(rle, ix, iz, lev, off, sx, sz):
+    """Map cell (ix, iz) at level ``lev``: (inside the map, tile holds an instance, entry).
+
+    The map is a grid of object-sized tiles (:func:`~jaxgfx.raycast.place_instances`);
+    the cell's column is the object's column at the position inside its tile.
+    """
+    tx, tz = rle.tiles.shape
+    xl, zl = sx[lev], sz[lev]
+    ti = jnp.floor_divide(ix, xl)
+    tk = jnp.floor_divide(iz, zl)
+    in_map = (ix >= 0) & (iz >= 0) & (ti < tx) & (tk < tz)
+    tile = rle.tiles[jnp.clip(ti, 0, tx - 1), jnp.clip(tk, 0, tz - 1)]
+    col = off[lev] + (ix - ti * xl) * zl + (iz - tk * zl)
+    return in_map, tile >= 0, col
+
+
+def _column_elements(rle, col, ok, level_height, E):
+    """Decodes up to E elements of one column: (n, top, bottom, valid, drawn_before)."""
+    safe = jnp.where(ok, col, 0)
+    n = jnp.where(ok, rle.count[safe].astype(jnp.int32), 0)
+    j = jnp.arange(E)
+    ptr = rle.ptr[safe].astype(jnp.int32)
+    rest = rle.elements[jnp.clip(ptr + j - 1, 0, rle.elements.shape[0] - 1)]
+    el = jnp.where(j == 0, rle.first[safe], rest).astype(jnp.int32)
+    el = jnp.where(j < n, el, 0)
+    skip, draw = unpack_element(el)
+    adv = skip + draw
+    above = _prefix_sum(adv) - adv
+    top = level_height - 1 - above - skip  # topmost drawn voxel of the element
+    bottom = top - draw + 1
+    drawn_before = _prefix_sum(draw) - draw
+    valid = (j < n) & (draw > 0)
+    return n, top, bottom, valid, drawn_before
+
+
+# ---------------------------------------------------------------------------
+# 3-D DDA set-up
+# ---------------------------------------------------------------------------
+
+
+def _dda_entry(shape, origin, direction, t_start):
+    """Entry of a ray into the grid ``[0, shape)`` for an Amanatides-Woo 3-D DDA.
+
+    Returns:
+        ``(1/direction, t_enter, t_exit, first voxel index, step, axis-parallel mask)``.
+    """
+    dims = jnp.asarray(shape, jnp.float32)
+    inv = _safe_div(1.0, direction, 1e-12)
+    t0 = (0.0 - origin) * inv
+    t1 = (dims - origin) * inv
+    t_enter = jnp.maximum(jnp.max(jnp.minimum(t0, t1)), t_start)
+    t_exit = jnp.min(jnp.maximum(t0, t1))
+    p = origin + direction * t_enter
+    dmax = jnp.asarray(shape, jnp.int32) - 1
+    idx = jnp.clip(jnp.floor(p).astype(jnp.int32), 0, dmax)
+    step = jnp.where(direction > 0, 1, -1).astype(jnp.int32)
+    tiny = jnp.abs(direction) < 1e-12
+    return inv, t_enter, t_exit, idx, step, tiny

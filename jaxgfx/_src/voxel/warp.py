@@ -1,0 +1,306 @@
+"""Displaying the ray buffer (thesis 4.5.5, Eq. 4.6) and the exact per-pixel re-walk.
+
+Every screen pixel finds its ray-buffer texel (:func:`ray_buffer_coords`) and
+intersects its own ray with that texel's drawn element, and with those of the
+adjacent planes (:func:`warp_ray_buffer`).  Pixels whose ray entered none of them
+re-walk a few voxels of their own ray through the RLE columns (:func:`refine_hits`,
+not in the thesis).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxgfx._src.voxel.codec import (
+    ELEMENT_WORDS,
+    WORD_COLOR,
+    WORD_HEIGHTS,
+    WORD_X,
+    WORD_Z_LEVEL,
+    unpack_drawn_box,
+)
+from jaxgfx._src.voxel.grid import (
+    _column_elements,
+    _dda_entry,
+    _level_tables,
+    _map_column,
+    _safe_div,
+)
+from jaxgfx._src.voxel.planes import Segments, _sgn_w
+from jaxgfx.camera import Camera, pixel_rays
+
+__all__ = ["ray_buffer_coords", "warp_ray_buffer", "refine_pixel", "refine_hits"]
+
+
+# ---------------------------------------------------------------------------
+# 4.5.5 Ray buffer -> screen (Eq. 4.6)
+# ---------------------------------------------------------------------------
+
+
+def _ray_buffer_texel(cam: Camera, seg: Segments):
+    """Per pixel: segment start, plane index in the segment, its count, row, ok."""
+    W, H = cam.width, cam.height
+    vp_h = seg.vp_h
+    w = vp_h[2]
+    sw = _sgn_w(w)
+    px = jnp.arange(W, dtype=jnp.float32)[None, :] + 0.5
+    py = jnp.arange(H, dtype=jnp.float32)[:, None] + 0.5
+    dx = vp_h[0] - px * w
+    dy = vp_h[1] - py * w
+    vert = jnp.abs(dy) >= jnp.abs(dx)
+    s = jnp.where(vert, jnp.where(dy * sw > 0, 0, 1), jnp.where(dx * sw > 0, 2, 3))
+    da = jnp.where(vert, dy, dx)
+    db = jnp.where(vert, dx, dy)
+    pa = jnp.where(vert, py, px)
+    pb = jnp.where(vert, px, py)
+    a_ref = jnp.stack([-float(H), 2.0 * H, -float(W), 2.0 * W])[s]
+    u = pb + (a_ref - pa) * _safe_div(db, da)
+    lo, hi, cnt, st = seg.u_lo[s], seg.u_hi[s], seg.count[s], seg.start[s]
+    x = (u - lo) / jnp.maximum(hi - lo, 1e-12) * cnt.astype(jnp.float32) - seg.phase
+    i = jnp.clip(jnp.floor(x + 0.5).astype(jnp.int32), 0, jnp.maximum(cnt - 1, 0))
+    row = jnp.floor(pa).astype(jnp.int32)
+    return st, i, cnt, row, cnt > 0
+
+
+def ray_buffer_coords(cam: Camera, seg: Segments):
+    """Ray-buffer texel ``(plane, row)`` of every screen pixel (Eq. 4.6, Fig. 4.14).
+
+    For segments 0/1 the row is the pixel's y and the plane follows from where
+    the pixel's line through vp crosses the segment's reference row; for 2/3 the
+    roles of x and y swap.  Pixels map to the nearest plane.
+
+    Returns:
+        ``(plane (H, W) int32, row (H, W) int32, ok (H, W) bool)``.
+    """
+    st, i, _, row, ok = _ray_buffer_texel(cam, seg)
+    return st + i, row, ok
+
+
+def _box_hit(fields, origins, dirs):
+    """Pixel ray vs the box of a drawn element: ``(t_enter, t_exit)`` per pixel.
+
+    ``fields`` = ``(top, bottom, cell x, cell z, level)`` arrays.  Written per
+    axis: XLA:CPU runs stacked ``(H, W, 3)`` min/max reductions slowly.
+    """
+    top, bottom, ix, iz, lev = fields
+    c = jnp.left_shift(1, lev).astype(jnp.float32)
+    lo = (ix.astype(jnp.float32) * c, bottom.astype(jnp.float32) * c, iz.astype(jnp.float32) * c)
+    hi = (lo[0] + c, (top + 1).astype(jnp.float32) * c, lo[2] + c)
+    t_enter, t_exit = -jnp.inf, jnp.inf
+    for k in range(3):
+        inv = _safe_div(1.0, dirs[..., k], 1e-12)
+        t0 = (lo[k] - origins[..., k]) * inv
+        t1 = (hi[k] - origins[..., k]) * inv
+        t_enter = jnp.maximum(t_enter, jnp.minimum(t0, t1))
+        t_exit = jnp.minimum(t_exit, jnp.maximum(t0, t1))
+    return t_enter, t_exit
+
+
+def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighbors: int = 1):
+    """Displays the ray buffer on the screen (4.5.5, Eq. 4.6).
+
+    The ray buffer is kept as, per plane, the list of drawn RLE elements and
+    the index of each texel's nearest element.  Every screen pixel
+    looks up its texel (:func:`ray_buffer_coords`) and intersects its own ray
+    with that element's box, so the colour along the element is perspective
+    correct and the depth exact for the pixel.
+
+    A pixel's ray lies between two planes, so its first voxel need not be the
+    one its nearest texel saw (voxel edges, silhouettes).  With
+    ``neighbors = k > 0`` the pixel also tests the elements of the same row in
+    the ``k`` planes on either side and keeps the nearest box its own ray
+    actually enters: the thesis filters the ray-buffer texture when it warps
+    (4.5.6); here the filter is an exact per-pixel intersection instead of a
+    blend, so colours are never mixed.  Every candidate is a real surface run,
+    so the result is never in front of the true first hit; a pixel whose ray
+    enters none of them keeps its nearest texel's element (the point of the
+    ray closest to that box).
+
+    Args:
+        rle: the scene.
+        cam: camera.
+        seg: the frame's :class:`Segments`.
+        texels: (P, n) int32 per-texel element indices from :func:`traverse_plane`.
+        elements: (P, 5, K) int32 drawn-element lists from :func:`traverse_plane`
+            (see :func:`jaxgfx._src.voxel.codec.pack_drawn`).
+        neighbors: static number of planes on either side tested per pixel
+            (0 = the nearest texel only, as in the thesis).
+
+    Returns:
+        ``(color (H, W, 3), depth (H, W), entered (H, W) bool)``; ``entered``
+        is False where the pixel's ray entered none of the candidate boxes.
+    """
+    P, K = elements.shape[0], elements.shape[2]
+    n_tree = texels.shape[1]
+    texel = texels.reshape(-1)
+    # Scalar gathers from the flat (free) view: word k of entry e of plane p
+    # is at (p 5 + k) K + e.  XLA:CPU gathers scalars from 1-D arrays much
+    # faster than rows, and per-word copies of the lists would cost more
+    # than the gathers.
+    flat = elements.reshape(-1)
+    word = lambda k, idx: jnp.take(flat, idx + k * K, mode="clip")  # noqa: E731
+    st, i0, cnt, row, ok = _ray_buffer_texel(cam, seg)
+    origins, dirs = pixel_rays(cam, normalize=False)
+    row_ok = ok & (row >= 0) & (row < n_tree)
+    row = jnp.clip(row, 0, n_tree - 1)
+
+    def lookup(di):
+        i = jnp.clip(i0 + di, 0, jnp.maximum(cnt - 1, 0))
+        plane = jnp.clip(st + i, 0, P - 1)
+        entry = jnp.take(texel, plane * n_tree + row, mode="clip")
+        hit = row_ok & (entry < K)
+        idx = plane * (ELEMENT_WORDS * K) + jnp.where(hit, entry, 0)
+        box = unpack_drawn_box(*(word(k, idx) for k in (WORD_HEIGHTS, WORD_X, WORD_Z_LEVEL)))
+        return hit, idx, box
+
+    def candidate_t(hit, box):
+        t_enter, t_exit = _box_hit(box, origins, dirs)
+        entered = hit & (t_enter <= t_exit) & (t_exit >= 0.0)
+        return jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
+
+    # All candidates at once, nearest texel first (it wins ties).
+    off_list = [0] + [d for d in range(-neighbors, neighbors + 1) if d != 0]
+    offs = jnp.asarray(off_list, jnp.int32)[:, None, None]
+    cand_t = candidate_t(*lookup(offs)[::2])  # (2 neighbors + 1, H, W)
+    best_t = jnp.min(cand_t, axis=0)
+    best_d = offs[jnp.argmin(cand_t, axis=0), 0, 0]
+    # Keep only the chosen plane offset and look it up again: carrying the
+    # candidate's index and depth together makes XLA:CPU ~10x slower here.
+    best_d = jax.lax.optimization_barrier(best_d)
+    hit, idx, box = lookup(best_d)
+    t_enter, t_exit = _box_hit(box, origins, dirs)
+    # A pixel ray that enters no candidate (it passes between the sampled
+    # planes' voxels) takes the point of its nearest texel's box closest to it.
+    t_hit = jnp.maximum(jnp.where(t_enter <= t_exit, t_enter, 0.5 * (t_enter + t_exit)), 0.0)
+    top, bottom, _, _, lev = box
+    cbase = word(WORD_COLOR, idx)
+    c = jnp.left_shift(1, lev).astype(jnp.float32)
+    y_hit = origins[..., 1] + dirs[..., 1] * t_hit
+    v = jnp.clip(jnp.floor(y_hit / c).astype(jnp.int32), bottom, top)
+    cidx = jnp.clip(cbase + (top - v), 0, rle.colors.shape[0] - 1)
+    rgb = rle.colors[cidx].astype(jnp.float32) / 255.0
+    color = jnp.where(hit[..., None], rgb, 0.0)
+    depth = jnp.where(hit, t_hit, jnp.inf)
+    return color, depth, jnp.isfinite(best_t)
+
+
+# ---------------------------------------------------------------------------
+# Per-pixel re-walk (not in the thesis)
+# ---------------------------------------------------------------------------
+
+
+def _voxel_lookup(rle, x, y, z):
+    """(solid, colour index) of level-0 voxel (x, y, z) by decoding its RLE column."""
+    L, off, sx, sy, sz = _level_tables(rle)
+    Y = rle.level_shapes[0][1]
+    in_map, has_tile, col = _map_column(rle, x, z, 0, off, sx, sz)
+    has = in_map & has_tile
+    inside = has & (y >= 0) & (y < Y)
+    n, top, bottom, valid, drawn_before = _column_elements(rle, col, inside, Y, rle.max_elements)
+    hit = valid & (y <= top) & (y >= bottom)
+    j = jnp.argmax(hit)
+    cidx = rle.color_ptr[jnp.where(inside, col, 0)].astype(jnp.int32) + drawn_before[j]
+    return inside & jnp.any(hit), cidx + top[j] - y
+
+
+def refine_pixel(rle, origin, direction, t_start, *, steps: int):
+    """Exact first hit of ONE pixel ray near a known depth (short 3-D DDA in the RLE).
+
+    Not part of the thesis: the ray buffer samples each pixel's nearest plane,
+    which can pick a neighbouring voxel at voxel edges; this pass re-walks the
+    pixel's own ray for ``steps`` voxels from ``t_start`` (a little before the
+    depth found in the 3x3 neighbourhood), decoding RLE columns on the way.
+
+    Returns:
+        ``(found (), t (), colour index ())``; t is in units of ``direction``.
+    """
+    inv, t_enter, t_exit, idx, step, tiny = _dda_entry(rle.shape, origin, direction, t_start)
+    dmax = jnp.asarray(rle.shape, jnp.int32) - 1
+
+    def body(carry, _):
+        idx, t, done, found, cidx = carry
+        solid, ci = _voxel_lookup(rle, idx[0], idx[1], idx[2])
+        now = ~done & solid
+        nxt = ((idx + (direction > 0)).astype(jnp.float32) - origin) * inv
+        nxt = jnp.where(tiny, jnp.inf, nxt)
+        ax = jnp.argmin(nxt)
+        idx_n = idx.at[ax].add(step[ax])
+        out = jnp.any(idx_n < 0) | jnp.any(idx_n > dmax)
+        done_n = done | now | out
+        return (
+            jnp.where(done_n, idx, idx_n),
+            jnp.where(done_n, t, nxt[ax]),
+            done_n,
+            found | now,
+            jnp.where(now, ci, cidx),
+        ), None
+
+    init = (idx, t_enter, t_enter > t_exit, jnp.bool_(False), jnp.int32(0))
+    (_, t, _, found, cidx), _ = jax.lax.scan(body, init, None, length=steps)
+    return found, t, cidx
+
+
+def refine_hits(
+    rle,
+    cam: Camera,
+    color,
+    depth,
+    *,
+    steps: int,
+    margin: float = 2.0,
+    mask=None,
+    budget: int | None = None,
+):
+    """Applies :func:`refine_pixel` to pixels with a hit in their 3x3 neighbourhood.
+
+    Args:
+        color: (H, W, 3), depth: (H, W) from the ray buffer warp.
+        steps: static DDA steps per pixel.
+        margin: start this far (ray units) before the neighbourhood's nearest depth.
+        mask: optional (H, W) bool, refine only these pixels.
+        budget: static; if set, only the first ``budget`` selected pixels (row
+            major) are re-walked, gathered into one compact batch, so the cost
+            is ``budget`` walks instead of ``H W``.
+
+    Returns:
+        ``(color, depth, selected)`` with exact hits where the short walk found
+        one; ``selected`` () int32 counts the pixels that asked for a walk
+        (those beyond ``budget`` keep the warp's result).
+    """
+    H, W = depth.shape
+    near = jax.lax.reduce_window(depth, jnp.inf, jax.lax.min, (3, 3), (1, 1), "SAME")
+    origins, dirs = pixel_rays(cam, normalize=False)
+    start = jnp.where(jnp.isfinite(near), jnp.maximum(near - margin, 0.0), 0.0)
+    want = jnp.isfinite(near) if mask is None else mask & jnp.isfinite(near)
+    fn = lambda o, d, t: refine_pixel(rle, o, d, t, steps=steps)  # noqa: E731
+    n = H * W
+    if budget is None or budget >= n:
+        found, t, cidx = jax.vmap(fn)(origins.reshape(n, 3), dirs.reshape(n, 3), start.ravel())
+        found = found & want.ravel()
+        idx = jnp.arange(n)
+    else:
+        idx = jnp.nonzero(want.ravel(), size=budget, fill_value=n)[0]
+        asked = jnp.sum(want)
+
+        def walk(part):
+            safe = jnp.minimum(part, n - 1)
+            o, d, t0 = origins.reshape(n, 3)[safe], dirs.reshape(n, 3)[safe], start.ravel()[safe]
+            f, t, ci = jax.vmap(fn)(o, d, t0)
+            return f & (part < n), t, ci
+
+        def skip(part):
+            z = jnp.zeros(part.shape, jnp.int32)
+            return jnp.zeros(part.shape, bool), z.astype(jnp.float32), z
+
+        # Walk in batches of 1024 and skip the batches no pixel asked for, so
+        # the cost follows the number of uncertain pixels, not the budget.
+        outs = [
+            jax.lax.cond(asked > a, walk, skip, idx[a : a + 1024]) for a in range(0, budget, 1024)
+        ]
+        found, t, cidx = (jnp.concatenate([o[k] for o in outs]) for k in range(3))
+    dest = jnp.where(found, idx, n)
+    rgb = rle.colors[jnp.clip(cidx, 0, rle.colors.shape[0] - 1)].astype(jnp.float32) / 255.0
+    color = color.reshape(n, 3).at[dest].set(rgb, mode="drop").reshape(H, W, 3)
+    depth = depth.ravel().at[dest].set(t, mode="drop").reshape(H, W)
+    return color, depth, jnp.sum(want).astype(jnp.int32)
