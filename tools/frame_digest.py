@@ -127,7 +127,7 @@ def main(argv=None) -> int:
         pipe = T.ClipBoxPipeline(terr, size=32, levels=3, smoothing=2)
         st = pipe.init((10, 40, 10))
         out["terrain/dem/init"] = digest(st)
-        st = pipe.update(st, (30, 40, 20))
+        st, _ = pipe.update(st, (30, 40, 20))  # (state, stats); stats hold wall-clock ms
         out["terrain/dem/update"] = digest(st)
     csg = T.random_csg_terrain(key=jax.random.key(2), count=400, period=256)
     pipe = T.ClipBoxPipeline(csg, size=32, levels=2)
