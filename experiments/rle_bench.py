@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -38,12 +36,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from experiments.common import DATA, machine
 from jaxgfx import post
 from jaxgfx import raycast as RC
-from jaxgfx import raycast as V
 from jaxgfx.camera import look_at, supersampled
-
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+from jaxgfx.io import atomic_write
 
 render = jax.jit(RC.render_rle)
 reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
@@ -52,21 +49,6 @@ reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0)
 # Mip level 1 starts here (voxels), level l at LOD_DISTANCE * 2^(l-1).
 LOD_DISTANCE = 96.0
-
-
-def machine() -> str:
-    devs = ", ".join(sorted({d.device_kind for d in jax.devices()}))
-    return (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"jax {jax.__version__} on {devs}"
-    )
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def markdown(rows, headers) -> str:
@@ -89,13 +71,19 @@ def scene_list(quick: bool):
     out = []
     key = jax.random.key(0)
     tree_res = 48 if quick else 64
-    tree = V.procedural_tree(tree_res, key=key, depth=4)
+    tree = RC.procedural_tree(tree_res, key=key, depth=4)
     k = 3 if quick else 5
-    forest = V.place_instances(
-        V.encode_rle(tree), [(i, j) for i in range(k) for j in range(k)], (k, k)
+    forest = RC.place_instances(
+        RC.encode_rle(tree), [(i, j) for i in range(k) for j in range(k)], (k, k)
     )
     out.append(
-        ("forest", V.decode_rle(forest), None, f"{k * k} trees of {tree_res}^3 (instances)", forest)
+        (
+            "forest",
+            RC.decode_rle(forest),
+            None,
+            f"{k * k} trees of {tree_res}^3 (instances)",
+            forest,
+        )
     )
     out.append(("tree", tree, None, f"procedural, {tree_res}^3", None))
     mres = 64 if quick else 256
@@ -110,18 +98,18 @@ def scene_list(quick: bool):
         )
         for name, fname in meshes:
             m = trimesh.load(DATA / "meshes" / fname, process=False)
-            vox = V.voxelize_mesh(m.vertices, m.faces, mres)
+            vox = RC.voxelize_mesh(m.vertices, m.faces, mres)
             out.append((name, vox, m, f"{fname}, R={mres}", None))
     if (DATA / "volumes").is_dir() and not quick:
-        vol, _ = V.load_volume(DATA / "volumes" / "HeadMRVolume.mhd")
-        out.append(("MR head", V.volume_to_voxels(vol, 60, up_axis=2), None, "iso 60", None))
-        ct, _ = V.load_volume(DATA / "volumes" / "headsq" / "quarter.nhdr")
-        out.append(("CT head", V.volume_to_voxels(ct, 1000, up_axis=2), None, "iso 1000", None))
+        vol, _ = RC.load_volume(DATA / "volumes" / "HeadMRVolume.mhd")
+        out.append(("MR head", RC.volume_to_voxels(vol, 60, up_axis=2), None, "iso 60", None))
+        ct, _ = RC.load_volume(DATA / "volumes" / "headsq" / "quarter.nhdr")
+        out.append(("CT head", RC.volume_to_voxels(ct, 1000, up_axis=2), None, "iso 1000", None))
     if (DATA / "voxlap" / "untitled.vxl").is_file() and not quick:  # quick: CI time
-        vxl = V.load_vxl(DATA / "voxlap" / "untitled.vxl")
+        vxl = RC.load_vxl(DATA / "voxlap" / "untitled.vxl")
         c = 128 if quick else 384
         lo, hi = 512 - c // 2, 512 + c // 2
-        crop = V.crop_voxels(vxl, (lo, 0, lo), (hi, 256, hi))
+        crop = RC.crop_voxels(vxl, (lo, 0, lo), (hi, 256, hi))
         out.append(("untitled.vxl", crop, None, f"{c}x256x{c} crop", None))
     return out
 
@@ -247,10 +235,10 @@ def run(args):
         # the forest row runs only when no mesh from the data folder does.
         if quick and (name == "tree" or (name == "forest" and has_mesh)):
             continue
-        rle_np = V.encode_rle(vox, levels=1) if pre is None else pre
-        st = V.rle_stats(V.encode_rle(vox, levels=4) if pre is None else pre)
-        rle = V.as_jax(rle_np)
-        occ, col = (jnp.asarray(a) for a in V.voxels_to_dense(vox))
+        rle_np = RC.encode_rle(vox, levels=1) if pre is None else pre
+        st = RC.rle_stats(RC.encode_rle(vox, levels=4) if pre is None else pre)
+        rle = RC.as_jax(rle_np)
+        occ, col = (jnp.asarray(a) for a in RC.voxels_to_dense(vox))
         centers = jnp.asarray(vox.coords, jnp.float32) + 0.5
         colors = jnp.asarray(vox.colors, jnp.float32) / 255.0
         for w, h in sizes:
@@ -348,23 +336,23 @@ def run(args):
         # The thesis's forests stand on terrain: the same tree on a one-voxel
         # ground slab filling its tile, so rows looking down between the
         # crowns end on the ground instead of crossing the whole map.
-        occ, col = V.voxels_to_dense(tree)
+        occ, col = RC.voxels_to_dense(tree)
         g_occ = np.concatenate([np.ones_like(occ[:, :1]), occ], axis=1)
         g_col = np.concatenate([np.broadcast_to(np.uint8([90, 120, 60]), col[:, :1].shape), col], 1)
-        variants.append(("trees on ground tiles", V.dense_to_voxels(g_occ, g_col, surface=False)))
+        variants.append(("trees on ground tiles", RC.dense_to_voxels(g_occ, g_col, surface=False)))
         # The thesis's 1 vs 1600 test used a big object (1024^3).  The
         # bunny at R = 256, its x / z padded to multiples of 32 so that six
         # mip levels tile, asks whether a bigger object closes the gap.
         bunny = next((v for name, v, *_ in scenes if name == "bunny"), None)
         if bunny is not None:
             pad = [-(-n // 32) * 32 for n in bunny.shape]
-            padded = V.Voxels(bunny.coords, bunny.colors, (pad[0], bunny.shape[1], pad[2]))
+            padded = RC.Voxels(bunny.coords, bunny.colors, (pad[0], bunny.shape[1], pad[2]))
             variants.append((f"bunnies (R={max(bunny.shape)})", padded))
     for label, obj in variants:
         # The full mip chain, as in the thesis (4.4.7), as far as instances allow
         # (a tile's x / z size must stay divisible by 2 ** (levels - 1)).
         side = int(np.gcd(obj.shape[0], obj.shape[2]))
-        rle_l = V.encode_rle(obj, levels=(side & -side).bit_length())
+        rle_l = RC.encode_rle(obj, levels=(side & -side).bit_length())
         tx, ty, tz = obj.shape
         counts = [1, 4] if quick else [1, 100, 1600]
         w, h = (128, 96) if quick else (512, 384)
@@ -378,9 +366,9 @@ def run(args):
             k = int(np.ceil(np.sqrt(n)))
             tiles = [(i, j) for i in range(k) for j in range(k)][:n]
             offs = [(i * tx, j * tz) for i, j in tiles]
-            scene = V.place_instances(rle_l, tiles, (k, k))
-            st = V.rle_stats(scene)
-            jscene = V.as_jax(scene)
+            scene = RC.place_instances(rle_l, tiles, (k, k))
+            st = RC.rle_stats(scene)
+            jscene = RC.as_jax(scene)
             X, Y, Z = scene.shape
             r = dict(
                 scene=label,
@@ -439,9 +427,9 @@ def run(args):
         for name, fname in (("bunny", "bun_zipper.ply"), ("dragon", "dragon_11k.ply")):
             m = trimesh.load(DATA / "meshes" / fname, process=False)
             t0 = time.perf_counter()
-            vox = V.voxelize_mesh(m.vertices, m.faces, args.bits_res)
-            st = V.rle_stats(V.encode_rle(vox, levels=int(np.log2(args.bits_res)) + 1))
-            st0 = V.rle_stats(V.encode_rle(vox, levels=1))
+            vox = RC.voxelize_mesh(m.vertices, m.faces, args.bits_res)
+            st = RC.rle_stats(RC.encode_rle(vox, levels=int(np.log2(args.bits_res)) + 1))
+            st0 = RC.rle_stats(RC.encode_rle(vox, levels=1))
             r = dict(
                 scene=name,
                 resolution=args.bits_res,
@@ -499,14 +487,11 @@ def main(argv=None) -> int:
     print(text)
     if args.out:
         out = Path(args.out)
-        _atomic_text(out / "table.md", text)
-        _atomic_text(
-            out / "table.json",
-            json.dumps(
-                dict(machine=machine(), rows=rows, accuracy=acc, instances=scale, memory=bits),
-                indent=1,
-            ),
-        )
+        with atomic_write(out / "table.md") as tmp:
+            tmp.write_text(text)
+        data = dict(machine=machine(), rows=rows, accuracy=acc, instances=scale, memory=bits)
+        with atomic_write(out / "table.json") as tmp:
+            tmp.write_text(json.dumps(data, indent=1))
     return 0
 
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -29,12 +28,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from experiments.common import DATA, machine
 from jaxgfx import post
 from jaxgfx import raycast as RC
-from jaxgfx import raycast as V
 from jaxgfx.camera import look_at, supersampled
-
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
 
 def main(argv=None) -> int:
@@ -48,12 +45,12 @@ def main(argv=None) -> int:
         import trimesh
 
         m = trimesh.load(DATA / "meshes" / "bun_zipper_res2.ply", process=False)
-        vox = V.voxelize_mesh(m.vertices, m.faces, res)
+        vox = RC.voxelize_mesh(m.vertices, m.faces, res)
         name = f"bunny R={res}"
     else:
-        vox = V.procedural_tree(res, key=jax.random.key(0))
+        vox = RC.procedural_tree(res, key=jax.random.key(0))
         name = f"tree R={res}"
-    rle = V.as_jax(V.encode_rle(vox))
+    rle = RC.as_jax(RC.encode_rle(vox))
     X, Y, Z = vox.shape
     c = np.array([X / 2, Y / 2, Z / 2])
     eye = c + np.array([0.55 * X, 0.2 * Y, 0.6 * Z])
@@ -82,8 +79,7 @@ def main(argv=None) -> int:
         rows.append(dict(aa=f"{fx}x{fy}", render_ms=round(1e3 * steady, 1),
                          compile_s=round(first - steady, 1)))  # fmt: skip
     grid = np.concatenate([np.concatenate(t, axis=0) for t in tiles], axis=1)
-    machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
-    text = f"Machine: {machine}; scene {name}; frame {w}x{h}\n\n| aa | render_ms | compile_s |\n"
+    text = f"Machine: {machine()}; scene {name}; frame {w}x{h}\n\n| aa | render_ms | compile_s |\n"
     text += "|---|---|---|\n" + "".join(
         f"| {r['aa']} | {r['render_ms']} | {r['compile_s']} |\n" for r in rows
     )
@@ -93,7 +89,7 @@ def main(argv=None) -> int:
 
         out = Path(args.out)
         save_png(out / "quality.png", np.clip(grid, 0, 1))
-        save_json(out / "table.json", dict(machine=machine, scene=name, rows=rows))
+        save_json(out / "table.json", dict(machine=machine(), scene=name, rows=rows))
         tmp = out / f".table.md.{os.getpid()}"
         tmp.write_text(text)
         os.replace(tmp, out / "table.md")
