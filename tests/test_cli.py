@@ -2,13 +2,30 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 
 import imageio.v3 as iio
 import numpy as np
+import pytest
 import trimesh
 
-from jaxgfx.cli import main
+import jaxgfx.cli
+from jaxgfx.cli import build_parser, main
+
+
+@pytest.fixture(autouse=True)
+def cache_calls(tmp_path, monkeypatch):
+    """Keeps main() away from the real cache and from JAX's global cache settings.
+
+    main() calls ``enable_compilation_cache(cache_dir())``; here it only records the
+    directory (``$JAXGFX_CACHE_DIR`` points into the test's tmp dir).
+    """
+    calls: list = []
+    monkeypatch.setenv("JAXGFX_CACHE_DIR", str(tmp_path / "jax-cache"))
+    monkeypatch.setattr(jaxgfx.cli, "enable_compilation_cache", calls.append)
+    return calls
 
 
 def test_info(capsys):
@@ -76,3 +93,186 @@ def test_negative_camera_values_need_no_equals(tmp_path, capsys):
          "--out", str(tmp_path / "f.png"), "--depth", str(npy)]
     )  # fmt: skip
     assert rc == 0 and np.isfinite(np.load(npy)).any()  # looks along +z at the sphere
+
+
+def test_cache_dir_and_no_cache(tmp_path, capsys, cache_calls, monkeypatch):
+    assert main(["info"]) == 0
+    assert cache_calls == [tmp_path / "jax-cache"]
+    assert main(["--no-cache", "info"]) == 0
+    assert len(cache_calls) == 1  # --no-cache skips it
+    assert jaxgfx.cli.cache_dir({"XDG_CACHE_HOME": "/x"}) == jaxgfx.cli.Path("/x/jaxgfx/jax")
+    assert (
+        jaxgfx.cli.cache_dir({"JAXGFX_CACHE_DIR": "/y", "XDG_CACHE_HOME": "/x"}).as_posix() == "/y"
+    )
+    home = jaxgfx.cli.cache_dir({})
+    assert home.parts[-3:] == (".cache", "jaxgfx", "jax")
+
+
+def test_enable_compilation_cache_sets_jax_config(tmp_path, monkeypatch):
+    import importlib
+
+    import jax
+
+    cli = importlib.reload(jaxgfx.cli)  # the real function, not the fixture's recorder
+    updates: dict = {}
+    monkeypatch.setattr(jax.config, "update", lambda k, v: updates.__setitem__(k, v))
+    assert cli.enable_compilation_cache(tmp_path / "c" / "jax")
+    assert updates == {
+        "jax_compilation_cache_dir": str(tmp_path / "c" / "jax"),
+        "jax_persistent_cache_min_compile_time_secs": 0.0,
+        "jax_persistent_cache_min_entry_size_bytes": -1,
+    }
+    (tmp_path / "file").write_text("")
+    assert not cli.enable_compilation_cache(tmp_path / "file" / "jax")  # cannot create: skip
+
+
+def test_every_option_has_help():
+    def walk(parser: argparse.ArgumentParser, name: str):
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            if isinstance(action, argparse._SubParsersAction):
+                for sub_name, sub in action.choices.items():
+                    yield from walk(sub, sub_name)
+                continue
+            yield name, action
+
+    seen = 0
+    for name, action in walk(build_parser(), "jaxgfx"):
+        seen += 1
+        assert action.help and action.help.strip(), f"{name} {action.option_strings or action.dest}"
+    assert seen > 40
+
+
+def _error_line(capsys, *words: str) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert "Traceback" not in captured.err and "error:" in lines[0]
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def ico(tmp_path):
+    path = tmp_path / "ico.ply"
+    trimesh.creation.icosphere(subdivisions=0).export(path)
+    return str(path)
+
+
+def test_bad_output_paths(tmp_path, capsys, ico):
+    d = tmp_path / "dir"
+    d.mkdir()
+    f = tmp_path / "file.txt"
+    f.write_text("")
+    missing = tmp_path / "nope" / "x.png"
+    cases = [
+        (["render", ico, "--out", str(tmp_path / "r.jpg")], "--out", ".png"),
+        (["render", ico, "--out", str(missing)], "--out", "does not exist"),
+        (["render", ico, "--out", str(d)[:-3] + "x.png"], "--out", "is a directory"),
+        (["render", ico, "--out", str(f)], "--out", ".png"),
+        (["render", ico, "--out", str(tmp_path / "a.png"), "--depth", str(tmp_path / "d.png")],
+         "--depth", ".npy"),
+        (["render", ico, "--out", str(tmp_path / "a.png"), "--depth", str(missing)[:-4] + ".npy"],
+         "--depth", "does not exist"),
+        (["demo", "--out", str(f)], "--out", "expected a directory"),
+        (["demo", "--out", str(missing)], "--out", "does not exist"),
+        (["sweep", ico, "--out", str(f)], "--out", "expected a directory"),
+        (["skin", "--out", str(f)], "--out", "expected a directory"),
+        (["terrain", "--out", str(tmp_path / "t.bmp")], "--out", ".png"),
+        (["terrain", "--out", str(tmp_path / "t.png"), "--mesh", str(tmp_path / "m.fbx")],
+         "--mesh", ".ply"),
+        (["terrain", "--out", str(tmp_path / "t.png"), "--mesh", str(missing)[:-4] + ".ply"],
+         "--mesh", "does not exist"),
+        (["voxelize", "tree", "--resolution", "8", "--out", str(tmp_path / "s.vox")],
+         "--out", ".npz"),
+        (["render-voxels", "s.npz", "--camera", "0,0,0,0,0", "--out", str(f)], "--out", ".png"),
+    ]  # fmt: skip
+    (tmp_path / "x.png").mkdir()
+    for argv, option, words in cases:
+        assert main(argv) == 2, argv
+        _error_line(capsys, option, words)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["dir", "file.txt", "ico.ply", "x.png"]
+    )  # nothing was written
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes anywhere")
+def test_unwritable_output(tmp_path, capsys, ico):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        assert main(["render", ico, "--out", str(ro / "r.png")]) == 2
+        _error_line(capsys, "--out", "not writable")
+        assert main(["demo", "--out", str(ro)]) == 2
+        _error_line(capsys, "--out", "not writable")
+    finally:
+        ro.chmod(0o700)
+
+
+def test_sizes_beyond_memory(tmp_path, capsys, ico):
+    png = str(tmp_path / "a.png")
+    cases = [
+        (["render", ico, "--size", "100000x100000", "--out", png], "--size"),
+        (["demo", "--size", "100000x100000", "--out", str(tmp_path / "d")], "--size"),
+        (["sweep", ico, "--size", "20000x20000", "--out", str(tmp_path / "s")], "--size"),
+        (["skin", "--size", "100000x100000", "--out", str(tmp_path / "k")], "--size"),
+        (["render-voxels", "s.npz", "--camera", "0,0,0,0,0", "--size", "20000x20000",
+          "--out", png], "--size"),
+        (["terrain", "--resolution", "4096", "--out", png], "--resolution"),
+        (["voxelize", "tree", "--resolution", "100000", "--out", str(tmp_path / "s.npz")],
+         "--resolution"),
+    ]  # fmt: skip
+    for argv, option in cases:
+        assert main(argv) == 2, argv
+        _error_line(capsys, option, "GiB", "limit")
+
+
+def test_bad_numbers(tmp_path, capsys, ico):
+    png = str(tmp_path / "a.png")
+    cam = ["--camera", "0,0,0,0,0"]
+    cases = [
+        (["render", ico, "--fov", "0", "--out", png], "--fov"),
+        (["render", ico, "--fov", "180", "--out", png], "--fov"),
+        (["render", ico, "--fov", "-5", "--out", png], "--fov"),
+        (["render", ico, "--fov", "nan", "--out", png], "--fov"),
+        (["sweep", ico, "--fov", "0"], "--fov"),
+        (["sweep", ico, "--elevation", "90"], "--elevation"),
+        (["terrain", "--fov", "200"], "--fov"),
+        (["render-voxels", "s.npz", *cam, "--fov", "0", "--out", png], "--fov"),
+        (["render-voxels", "s.npz", *cam, "--far", "0", "--out", png], "--far"),
+        (["render-voxels", "s.npz", *cam, "--refine", "-1", "--out", png], "--refine"),
+        (["render-voxels", "s.npz", *cam, "--oversample", "0", "--out", png], "--oversample"),
+        (["render-voxels", "s.npz", *cam, "--lod", "-1", "--out", png], "--lod"),
+        (["terrain", "--mesh-level", "7", "--out", png, "--mesh", str(tmp_path / "m.ply")],
+         "--mesh-level"),
+        (["terrain", "--mesh-level", "1", "--out", png], "--mesh-level"),
+        (["terrain", "--mesh-level", "-1"], "--mesh-level"),
+        (["terrain", "--resolution", "12", "--out", png], "--resolution"),
+        (["terrain", "--levels", "0"], "--levels"),
+        (["terrain", "--smoothing", "-1"], "--smoothing"),
+        (["terrain", "--cell", "0"], "--cell"),
+        (["terrain", "--vertical-scale", "0"], "--vertical-scale"),
+        (["voxelize", "tree", "--resolution", "8", "--levels", "20",
+          "--out", str(tmp_path / "s.npz")], "--levels"),
+        (["skin", "--bend", "1e30"], "--bend"),
+        (["skin", "--twist", "-361"], "--twist"),
+        (["skin", "--bend", "inf"], "--bend"),
+        (["sweep", ico, "--n", "0"], "--n"),
+    ]  # fmt: skip
+    for argv, option in cases:
+        assert main(argv) == 2, argv
+        _error_line(capsys, option)
+    assert list(tmp_path.iterdir()) == [tmp_path / "ico.ply"]
+
+
+def test_levels_beyond_a_saved_scene(tmp_path, capsys):
+    scene = tmp_path / "s.npz"
+    np.savez(scene, coords=np.zeros((1, 3), np.int64), colors=np.zeros((1, 3), np.uint8),
+             shape=np.array([4, 4, 4]))  # fmt: skip
+    argv = ["render-voxels", str(scene), "--camera", "2,2,-10,0,0", "--levels", "4",
+            "--out", str(tmp_path / "a.png")]  # fmt: skip
+    assert main(argv) == 2
+    _error_line(capsys, "--levels", "<= 3")

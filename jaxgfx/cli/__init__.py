@@ -4,29 +4,79 @@ Each subcommand lives in its own module with ``register(subparsers)``; :data:`CO
 lists them in the order ``jaxgfx --help`` shows them.  Arguments are parsed by the
 helpers in :mod:`jaxgfx.cli.args`; every usage error ends the same way: one
 ``jaxgfx CMD: error: ...`` line on stderr and exit code 2.
+
+Second runs are fast: before any JAX computation :func:`main` turns on JAX's persistent
+compilation cache in :func:`cache_dir` (``$JAXGFX_CACHE_DIR``, else
+``$XDG_CACHE_HOME/jaxgfx/jax``, else ``~/.cache/jaxgfx/jax``), caching every program however
+small or quick to compile; ``jaxgfx --no-cache CMD ...`` skips it.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 from jaxgfx.cli import demo, info, render, skin, terrain, voxels
 from jaxgfx.cli.args import CliError, join_negative_values
 
-__all__ = ["main", "build_parser", "COMMANDS"]
+__all__ = ["main", "build_parser", "COMMANDS", "cache_dir", "enable_compilation_cache"]
 
 COMMANDS = (demo, render, info, voxels, terrain, skin)
 
 
+def cache_dir(environ: Mapping[str, str] | None = None) -> Path:
+    """Where the CLI keeps compiled programs: ``$JAXGFX_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/jaxgfx/jax``, else ``~/.cache/jaxgfx/jax``."""
+    env = os.environ if environ is None else environ
+    if env.get("JAXGFX_CACHE_DIR"):
+        return Path(env["JAXGFX_CACHE_DIR"]).expanduser()
+    base = env.get("XDG_CACHE_HOME") or str(Path("~/.cache").expanduser())
+    return Path(base) / "jaxgfx" / "jax"
+
+
+def enable_compilation_cache(path: Path) -> bool:
+    """Points JAX's persistent compilation cache at ``path`` for every program.
+
+    Returns False (and leaves JAX alone) when the directory cannot be created: a cache
+    that cannot be written must not stop a render.
+    """
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    if not os.access(path, os.W_OK | os.X_OK):
+        return False
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    # JAX caches only programs that took >= 1 s to compile by default; ours are small.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    return True
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argparse parser whose usage errors are one line: ``PROG: error: MESSAGE``."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser with every subcommand of :data:`COMMANDS` registered."""
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="jaxgfx",
         description="Game-engine visualization in JAX (terrain, voxels, skinning).",
     )
-    sub = p.add_subparsers(dest="command")
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="do not use the persistent compilation cache (see JAXGFX_CACHE_DIR)",
+    )
+    sub = p.add_subparsers(dest="command", title="commands")
     for module in COMMANDS:
         module.register(sub)
     return p
@@ -43,6 +93,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
+    if not args.no_cache:
+        enable_compilation_cache(cache_dir())
     try:
         return int(args.func(args) or 0)
     except (CliError, ValueError, TypeError, FileNotFoundError) as exc:

@@ -4,14 +4,23 @@ Every parser here raises ``argparse.ArgumentTypeError`` with a message that name
 expected, so argparse reports ``jaxgfx CMD: error: argument --X: ...`` and exits with 2.
 Errors found after parsing (a missing file, an inconsistent combination) raise
 :class:`CliError`; :func:`jaxgfx.cli.main` prints both the same way.
+
+Every subcommand checks its output paths (:func:`check_out_file`, :func:`check_out_dir`)
+and its memory estimate (:func:`check_memory`) before it imports JAX or does any work,
+so a bad path or an impossible size fails in well under a second instead of after the
+render.  The memory limit is half the machine's physical RAM (``os.sysconf``), 8 GiB
+where that is unknown; the estimates are deliberately rough upper bounds per pixel or
+per voxel, meant to refuse sizes that cannot work, not to budget exactly.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 
 __all__ = [
     "CliError",
@@ -20,8 +29,21 @@ __all__ = [
     "parse_ints",
     "positive_int",
     "parse_aa",
+    "parse_fov",
+    "bounded_float",
+    "nonnegative_int",
     "join_negative_values",
+    "check_out_file",
+    "check_out_dir",
+    "memory_limit",
+    "check_memory",
+    "check_image",
+    "PIXEL_BYTES",
 ]
+
+PIXEL_BYTES = 128
+"""Rough upper bound of the bytes one rasterized pixel costs (z-buffer, colour, depth, face
+id, the compositing copies and headroom); :func:`check_image` multiplies it by W*H."""
 
 
 class CliError(Exception):
@@ -88,6 +110,39 @@ def positive_int(text: str) -> int:
     return v
 
 
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def bounded_float(lo: float, hi: float, *, open_interval: bool = False) -> Callable[[str], float]:
+    """A parser of one finite float in ``[lo, hi]`` (``(lo, hi)`` when ``open_interval``)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        inside = lo < v < hi if open_interval else lo <= v <= hi
+        if not (math.isfinite(v) and inside):
+            lb, rb = ("(", ")") if open_interval else ("[", "]")
+            raise argparse.ArgumentTypeError(f"must be in {lb}{lo:g}, {hi:g}{rb}, got {text!r}")
+        return v
+
+    return parse
+
+
+def parse_fov(text: str) -> float:
+    """A field of view in degrees, strictly between 0 and 180."""
+    return bounded_float(0.0, 180.0, open_interval=True)(text)
+
+
 _AA = {"1x1": (1, 1), "2x1": (2, 1), "2x2": (2, 2)}
 
 
@@ -121,3 +176,78 @@ def join_negative_values(argv: Sequence[str]) -> list[str]:
         else:
             out.append(tok)
     return out
+
+
+def _check_parent(option: str, path: Path) -> None:
+    parent = path.parent
+    if not parent.exists():
+        raise CliError(f"{option} {str(path)!r}: directory {str(parent)!r} does not exist")
+    if not parent.is_dir():
+        raise CliError(f"{option} {str(path)!r}: {str(parent)!r} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise CliError(f"{option} {str(path)!r}: directory {str(parent)!r} is not writable")
+
+
+def check_out_file(option: str, path: str | os.PathLike, suffixes: Iterable[str]) -> Path:
+    """Checks an output file before any work; returns it as a :class:`~pathlib.Path`.
+
+    The suffix must be one of ``suffixes`` (lower case, with the dot: the file is written
+    in that format and no other), the path must not be a directory, and its parent
+    directory must exist and be writable.  Raises :class:`CliError` naming ``option``.
+    """
+    p = Path(path)
+    accepted = tuple(suffixes)
+    if p.suffix.lower() not in accepted:
+        got = repr(p.suffix) if p.suffix else "no suffix"
+        raise CliError(
+            f"{option} {str(p)!r}: {got} is not a format this writes; use {', '.join(accepted)}"
+        )
+    if p.is_dir():
+        raise CliError(f"{option} {str(p)!r} is a directory, expected a file")
+    _check_parent(option, p)
+    if p.exists() and not os.access(p, os.W_OK):
+        raise CliError(f"{option} {str(p)!r} is not writable")
+    return p
+
+
+def check_out_dir(option: str, path: str | os.PathLike) -> Path:
+    """Checks an output directory before any work: an existing writable directory, or a new
+    one whose parent exists and is writable.  Raises :class:`CliError` naming ``option``."""
+    p = Path(path)
+    if p.exists():
+        if not p.is_dir():
+            raise CliError(f"{option} {str(p)!r} is a file, expected a directory")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise CliError(f"{option} {str(p)!r}: directory is not writable")
+        return p
+    _check_parent(option, p)
+    return p
+
+
+def memory_limit() -> int:
+    """The most bytes a command may plan to use: half the physical RAM, else 8 GiB."""
+    try:
+        total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        total = 0
+    return total // 2 if total > 0 else 8 << 30
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**30:,.1f} GiB"
+
+
+def check_memory(option: str, value: str, nbytes: float) -> None:
+    """Refuses ``option value`` when its estimate ``nbytes`` exceeds :func:`memory_limit`."""
+    limit = memory_limit()
+    if nbytes > limit:
+        raise CliError(
+            f"{option} {value}: needs about {_gib(nbytes)}, more than the limit of "
+            f"{_gib(limit)} (half the physical memory); choose a smaller value"
+        )
+
+
+def check_image(size: tuple[int, int], bytes_per_pixel: float, option: str = "--size") -> None:
+    """:func:`check_memory` for a ``W x H`` frame at ``bytes_per_pixel``."""
+    w, h = size
+    check_memory(option, f"{w}x{h}", float(w) * h * bytes_per_pixel)

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from jaxgfx.cli.args import parse_size
+from jaxgfx.cli.args import PIXEL_BYTES, check_image, check_out_dir, parse_size
 
 __all__ = ["register", "run"]
 
@@ -23,6 +22,8 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Renders every pass with one camera, composites them and writes the timing table."""
+    out = check_out_dir("--out", args.out)
+    check_image(args.size, 4 * PIXEL_BYTES)  # several passes + the composite
     import jax
 
     from jaxgfx._src.report import machine, markdown_table, time_jitted
@@ -31,7 +32,6 @@ def run(args: argparse.Namespace) -> int:
     from jaxgfx.scene import build_demo
 
     w, h = args.size
-    out = Path(args.out)
     demo = build_demo(w, h, key=jax.random.key(args.seed))
     rows, frames = [], []
     for name, fn, fn_args, first in demo.passes:

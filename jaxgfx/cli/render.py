@@ -6,11 +6,22 @@ import argparse
 import json
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
-from jaxgfx.cli.args import CliError, parse_floats, parse_size, positive_int
+from jaxgfx.cli.args import (
+    PIXEL_BYTES,
+    CliError,
+    bounded_float,
+    check_image,
+    check_memory,
+    check_out_dir,
+    check_out_file,
+    parse_floats,
+    parse_fov,
+    parse_size,
+    positive_int,
+)
 
 __all__ = ["register", "run_render", "run_sweep", "contact_sheet"]
 
@@ -41,6 +52,10 @@ def _camera_for(vertices: np.ndarray, args: argparse.Namespace):
 
 def run_render(args: argparse.Namespace) -> int:
     """Renders one view of a mesh; writes the PNG (and depth) and prints one JSON line."""
+    out = check_out_file("--out", args.out, (".png",))
+    depth = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
+    check_image(args.size, PIXEL_BYTES)
+
     import jax
 
     from jaxgfx.compose import background, composite
@@ -59,9 +74,9 @@ def run_render(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     frame = jax.block_until_ready(fn(cam, mp))
     dt = time.perf_counter() - t0
-    save_png(args.out, frame.color)
-    if args.depth:
-        save_npy(args.depth, np.asarray(frame.depth))
+    save_png(out, frame.color)
+    if depth is not None:
+        save_npy(depth, np.asarray(frame.depth))
     cov = float(np.isfinite(np.asarray(frame.depth)).mean())
     print(json.dumps(dict(out=str(args.out), triangles=len(f), seconds=round(dt, 3), coverage=cov)))
     return 0
@@ -88,15 +103,18 @@ def run_sweep(args: argparse.Namespace) -> int:
 
     if args.n <= 0:
         raise CliError(f"--n must be positive, got {args.n}")
+    out = check_out_dir("--out", args.out)
+    w, h = args.size
+    # a chunk of frames in flight, plus every frame's colour + depth for the contact sheet
+    need = float(w) * h * (min(args.chunk, args.n) * PIXEL_BYTES + args.n * 8)
+    check_memory("--size", f"{w}x{h} (with --n {args.n}, --chunk {args.chunk})", need)
     m = load_mesh(args.mesh)
     v, f, c = mesh_arrays(m)
-    w, h = args.size
     center, dist = _framing(v, args.fov)
     cams = orbit_cameras(
         center, dist, args.n, args.elevation, args.fov, w, h, dist * 1e-3, dist * 10
     )
     mp = mesh_pass(v, f, c)
-    out = Path(args.out)
 
     def render_one(cam):
         fr = composite([background(cam), render_mesh_pass(cam, mp)])
@@ -126,10 +144,14 @@ def register(subparsers) -> None:
         default=None,
         help="x,y,z,yaw,pitch (degrees; y up, yaw 0 looks along +z); default frames the mesh",
     )
-    r.add_argument("--fov", type=float, default=45.0, help="vertical field of view, degrees")
+    r.add_argument(
+        "--fov", type=parse_fov, default=45.0, help="vertical field of view, degrees in (0, 180)"
+    )
     r.add_argument("--size", type=parse_size, default=(640, 480), help="WxH (default 640x480)")
     r.add_argument("--out", default="frame.png", help="output PNG (default frame.png)")
-    r.add_argument("--depth", default=None, help="write camera-space depth (+inf = empty) here")
+    r.add_argument(
+        "--depth", default=None, help="write camera-space depth (+inf = empty) to this .npy"
+    )
     r.add_argument("--cull", action="store_true", help="cull back faces")
     r.set_defaults(func=run_render)
 
@@ -138,7 +160,14 @@ def register(subparsers) -> None:
     s.add_argument("--n", type=int, default=12, help="number of cameras")
     s.add_argument("--out", default="sweep", help="output directory (frames, chunks, sheet)")
     s.add_argument("--size", type=parse_size, default=(160, 120), help="WxH (default 160x120)")
-    s.add_argument("--fov", type=float, default=45.0, help="vertical field of view, degrees")
-    s.add_argument("--elevation", type=float, default=20.0, help="degrees above the horizon")
+    s.add_argument(
+        "--fov", type=parse_fov, default=45.0, help="vertical field of view, degrees in (0, 180)"
+    )
+    s.add_argument(
+        "--elevation",
+        type=bounded_float(-90.0, 90.0, open_interval=True),
+        default=20.0,
+        help="degrees above the horizon, in (-90, 90)",
+    )
     s.add_argument("--chunk", type=positive_int, default=4, help="cameras per chunk")
     s.set_defaults(func=run_sweep)

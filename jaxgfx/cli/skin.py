@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
-from jaxgfx.cli.args import CliError, parse_size
+from jaxgfx.cli.args import PIXEL_BYTES, bounded_float, check_image, check_out_dir, parse_size
 
 __all__ = ["register", "run"]
+
+# One full turn either way: enough for any pose, and far from float32 trouble.
+_ANGLE = bounded_float(-360.0, 360.0)
 
 
 def register(subparsers) -> None:
@@ -17,15 +19,20 @@ def register(subparsers) -> None:
         "skin",
         help="render the demo arm bent/twisted with spline skinning, LBS or DQS (thesis ch. 5)",
     )
-    p.add_argument("--method", choices=("spline", "lbs", "dqs"), default="spline")
+    p.add_argument(
+        "--method",
+        choices=("spline", "lbs", "dqs"),
+        default="spline",
+        help="spline skinning (thesis), linear blend or dual quaternion skinning",
+    )
     p.add_argument(
         "--style",
         choices=("none", "muscle"),
         default="muscle",
         help="deformation style (spline only)",
     )
-    p.add_argument("--bend", type=float, default=90.0, help="elbow bend in degrees")
-    p.add_argument("--twist", type=float, default=0.0, help="twist in degrees")
+    p.add_argument("--bend", type=_ANGLE, default=90.0, help="elbow bend in degrees, |bend| <= 360")
+    p.add_argument("--twist", type=_ANGLE, default=0.0, help="twist in degrees, |twist| <= 360")
     p.add_argument("--size", type=parse_size, default=(320, 320), help="WxH (default 320x320)")
     p.add_argument("--out", default="skin_out", help="output directory")
     p.set_defaults(func=run)
@@ -33,6 +40,9 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Handler: writes ``skin.png`` and prints the deformation time."""
+    out_dir = check_out_dir("--out", args.out)
+    check_image(args.size, PIXEL_BYTES)
+
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -44,8 +54,6 @@ def run(args) -> int:
     from jaxgfx.raster import rasterize
 
     w, h = args.size
-    if not (math.isfinite(args.bend) and math.isfinite(args.twist)):
-        raise CliError(f"--bend and --twist must be finite, got {args.bend}, {args.twist}")
     arm = skin.demo_arm()
     rig, binding, faces = arm.rig, arm.binding, arm.faces
     pose = skin.demo_arm_pose(rig, math.radians(args.bend), math.radians(args.twist))
@@ -74,7 +82,7 @@ def run(args) -> int:
     out = jax.jit(rasterize)(cam, pos, jnp.asarray(faces), nrm)
     albedo = jnp.broadcast_to(jnp.array([0.85, 0.6, 0.45]), out.color.shape)
     img = jnp.where((out.tri_id >= 0)[..., None], lambert(out.color, albedo), 1.0)
-    path = Path(args.out) / "skin.png"
+    path = out_dir / "skin.png"
     save_png(path, np.asarray(img))
     print(
         f"{args.method} (style {styles}): {len(arm.vertices)} vertices, first call {first:.3f} s, "

@@ -2,14 +2,50 @@
 
 from __future__ import annotations
 
+import math
 import time
-from pathlib import Path
 
-from jaxgfx.cli.args import parse_floats, parse_ints, parse_size
+from jaxgfx.cli.args import (
+    PIXEL_BYTES,
+    CliError,
+    bounded_float,
+    check_memory,
+    check_out_file,
+    nonnegative_int,
+    parse_floats,
+    parse_fov,
+    parse_ints,
+    parse_size,
+    positive_int,
+)
 
 __all__ = ["register", "run", "make_terrain"]
 
 FUNCTIONS = ("csg", "xor", "saw", "sin", "heightmap:PATH")
+MESH_SUFFIXES = (".ply", ".glb", ".obj", ".stl", ".off")
+VOXEL_BYTES = 64
+"""Rough upper bound of the bytes one Clip-Box voxel costs (density, meshing, smoothing)."""
+
+
+def check_args(args) -> None:
+    """Every check that needs no JAX: paths, levels, and the memory estimate."""
+    check_out_file("--out", args.out, (".png",))
+    if args.mesh:
+        check_out_file("--mesh", args.mesh, MESH_SUFFIXES)
+    n, levels = args.resolution, args.levels
+    if n < 8 or n % 8:
+        raise CliError(f"--resolution must be a multiple of 8 and >= 8, got {n}")
+    if args.mesh_level is not None:
+        if args.mesh is None:
+            raise CliError("--mesh-level needs --mesh")
+        if args.mesh_level >= levels:
+            raise CliError(
+                f"--mesh-level must be in [0, {levels - 1}] with --levels {levels}, "
+                f"got {args.mesh_level}"
+            )
+    w, h = args.size
+    need = float(levels) * (n + 2) ** 3 * VOXEL_BYTES + float(w) * h * PIXEL_BYTES
+    check_memory("--resolution", f"{n} (with --levels {levels}, --size {w}x{h})", need)
 
 
 def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = None, cell: int = 1):
@@ -44,6 +80,9 @@ def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = Non
 
 
 def run(args) -> int:
+    """Builds the nested boxes around ``--viewer``, renders them, optionally exports the mesh."""
+    check_args(args)
+
     import jax
     import numpy as np
 
@@ -73,7 +112,7 @@ def run(args) -> int:
     img = composite([background(cam), frame]).color
     jax.block_until_ready(img)
     render_s = time.perf_counter() - t0
-    out = Path(args.out)
+    out = args.out
     save_png(out, img)
     n_tri = int(T.level_arrays(levels, viewer)[2].shape[0])
     print(
@@ -106,9 +145,9 @@ def register(subparsers) -> None:
         help="x,y,z integer voxels (y up)",
     )
     p.add_argument(
-        "--resolution", type=int, default=64, help="N voxels per box edge (multiple of 8)"
+        "--resolution", type=positive_int, default=64, help="N voxels per box edge (multiple of 8)"
     )
-    p.add_argument("--levels", type=int, default=5, help="number of nested boxes L >= 1")
+    p.add_argument("--levels", type=positive_int, default=5, help="number of nested boxes L >= 1")
     p.add_argument("--out", default="terrain.png", help="output PNG")
     p.add_argument(
         "--camera",
@@ -117,11 +156,25 @@ def register(subparsers) -> None:
         help="yaw,pitch in degrees",
     )
     p.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
-    p.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees")
-    p.add_argument("--mesh", default=None, help="export the mesh (.ply, .glb, .obj)")
-    p.add_argument("--mesh-level", type=int, default=None, help="export only this level")
-    p.add_argument("--smoothing", type=int, default=4, help="vertex-averaging iterations")
+    p.add_argument(
+        "--fov", type=parse_fov, default=60.0, help="vertical field of view, degrees in (0, 180)"
+    )
+    p.add_argument("--mesh", default=None, help=f"export the mesh ({', '.join(MESH_SUFFIXES)})")
+    p.add_argument(
+        "--mesh-level",
+        type=nonnegative_int,
+        default=None,
+        help="export only this level, 0 (innermost) .. L-1",
+    )
+    p.add_argument(
+        "--smoothing", type=nonnegative_int, default=4, help="vertex-averaging iterations"
+    )
     p.add_argument("--seed", type=int, default=0, help="key for the random CSG terrain")
-    p.add_argument("--vertical-scale", type=float, default=None, help="heightmap voxels per unit")
-    p.add_argument("--cell", type=int, default=1, help="heightmap voxels per pixel")
+    p.add_argument(
+        "--vertical-scale",
+        type=bounded_float(0.0, math.inf, open_interval=True),
+        default=None,
+        help="heightmap voxels per unit (default: relief an eighth of the map's width)",
+    )
+    p.add_argument("--cell", type=positive_int, default=1, help="heightmap voxels per pixel")
     p.set_defaults(func=run)

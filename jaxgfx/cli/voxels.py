@@ -10,10 +10,23 @@ axis in voxel units, +inf where nothing was hit.
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
-from jaxgfx.cli.args import parse_aa, parse_floats, parse_size, positive_int
+from jaxgfx.cli.args import (
+    CliError,
+    bounded_float,
+    check_image,
+    check_memory,
+    check_out_file,
+    nonnegative_int,
+    parse_aa,
+    parse_floats,
+    parse_fov,
+    parse_size,
+    positive_int,
+)
 
 __all__ = ["register", "run_voxelize", "run_render_voxels", "load_input"]
 
@@ -21,6 +34,23 @@ _CONVENTIONS = (
     "Scene coordinates are voxel units, y up; a voxelized mesh of resolution R occupies "
     "[0, R) on its longest axis with its lowest voxel at y = 0."
 )
+
+
+VOXEL_BYTES = 8
+"""Rough upper bound of the bytes per cell of the ``R^3`` grid that voxelizing works on."""
+RAY_BYTES = 256
+"""Rough upper bound of the bytes one ray (one pixel of the supersampled frame) costs in
+the RLE ray caster (planes, texels, re-walk) and the anti-aliasing pass."""
+
+
+def check_levels(levels: int, grid: int, what: str) -> None:
+    """Refuses mip levels whose coarsest voxel (``2^(levels-1)``) is wider than the grid."""
+    if 1 << (levels - 1) > grid:
+        top = grid.bit_length()  # largest l with 2^(l-1) <= grid
+        raise CliError(
+            f"--levels {levels}: the coarsest level would be 2^{levels - 1} voxels wide, more "
+            f"than the {what} of {grid}; use --levels <= {top}"
+        )
 
 
 def load_input(path: str, resolution: int | None, iso: float | None, seed: int = 0):
@@ -64,13 +94,20 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
 
 def run_voxelize(args) -> int:
     """Voxelizes an input and prints one JSON line with the memory accounting."""
+    out = check_out_file("--out", args.out, (".npz",))
+    if args.resolution is not None:
+        r = args.resolution
+        check_memory("--resolution", str(r), float(r) ** 3 * VOXEL_BYTES)
+        check_levels(args.levels, r, "--resolution")
+
     from jaxgfx import raycast as V
 
     t0 = time.perf_counter()
     vox = load_input(args.input, args.resolution, args.iso, args.seed)
+    check_levels(args.levels, max(vox.shape), "largest grid axis")
     rle = V.encode_rle(vox, levels=args.levels)
     st = V.rle_stats(rle)
-    V.save_scene(args.out, vox)
+    V.save_scene(str(out), vox)
     line = dict(
         input=str(args.input),
         shape=list(vox.shape),
@@ -91,6 +128,10 @@ def run_voxelize(args) -> int:
 
 def run_render_voxels(args) -> int:
     """Renders a saved voxel scene to a PNG (and optionally a depth .npy)."""
+    out_png = check_out_file("--out", args.out, (".png",))
+    depth_npy = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
+    check_image(args.size, RAY_BYTES * args.aa[0] * args.aa[1])
+
     import jax
     import jax.numpy as jnp
 
@@ -100,6 +141,7 @@ def run_render_voxels(args) -> int:
     from jaxgfx.post import antialias
 
     vox = RC.load_scene(args.scene)
+    check_levels(args.levels, max(vox.shape), "scene's largest axis")
     x, y, z, yaw, pitch = args.camera
     w, h = args.size
     cam = camera_from_degrees([x, y, z], yaw, pitch, 0.0, args.fov, w, h, far=args.far)
@@ -130,9 +172,9 @@ def run_render_voxels(args) -> int:
     color, depth = antialias(out.color, out.depth, args.aa)
     jax.block_until_ready(depth)
     seconds = time.perf_counter() - t0
-    save_png(args.out, color)
-    if args.depth:
-        save_npy(args.depth, depth)
+    save_png(out_png, color)
+    if depth_npy is not None:
+        save_npy(depth_npy, depth)
     print(
         json.dumps(
             dict(
@@ -165,7 +207,7 @@ def register(subparsers) -> None:
                    help="iso threshold for volumes (default: middle of the range)")  # fmt: skip
     p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
-    p.add_argument("--out", required=True, help="output scene .npz")
+    p.add_argument("--out", required=True, help="output scene (.npz)")
     p.set_defaults(func=run_voxelize)
 
     r = subparsers.add_parser(
@@ -181,17 +223,25 @@ def register(subparsers) -> None:
     r.add_argument(
         "--camera", type=parse_floats(5, "x,y,z,yaw,pitch"), required=True, help="x,y,z,yaw,pitch"
     )
-    r.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees")
+    r.add_argument(
+        "--fov", type=parse_fov, default=60.0, help="vertical field of view, degrees in (0, 180)"
+    )
     r.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
-    r.add_argument("--far", type=float, default=1e5, help="maximal view distance (voxels)")
+    r.add_argument(
+        "--far",
+        type=bounded_float(0.0, math.inf, open_interval=True),
+        default=1e5,
+        help="maximal view distance (voxels)",
+    )
     r.add_argument("--levels", type=positive_int, default=1, help="mip levels (LOD)")
-    r.add_argument("--lod", type=float, default=0.0,
+    r.add_argument("--lod", type=bounded_float(0.0, math.inf), default=0.0,
                    help="distance where mip level 1 starts, level l at lod * 2^(l-1) "
                    "(0: level 0 only)")  # fmt: skip
-    r.add_argument("--refine", type=int, default=16,
+    r.add_argument("--refine", type=nonnegative_int, default=16,
                    help="exact re-walk steps for pixels whose ray met no sampled voxel "
                    "(0: off)")  # fmt: skip
-    r.add_argument("--oversample", type=float, default=2.0,
+    r.add_argument("--oversample", type=bounded_float(0.0, math.inf, open_interval=True),
+                   default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
     r.add_argument("--thesis", action="store_true",
                    help="the thesis method alone: 1 plane per border pixel, nearest "
@@ -200,8 +250,8 @@ def register(subparsers) -> None:
                    help="anti-aliasing 1x1 (off), 2x1 (thesis: pixels half as wide) or 2x2; "
                    "the frame is rendered at the finer grid and averaged back to --size, "
                    "the depth is the nearest sample")  # fmt: skip
-    r.add_argument("--out", required=True, help="output PNG")
-    r.add_argument("--depth", default=None, help="optional depth .npy")
+    r.add_argument("--out", required=True, help="output PNG (.png)")
+    r.add_argument("--depth", default=None, help="optional depth (.npy)")
     r.add_argument("--reference", action="store_true",
                    help="use the per-pixel 3-D DDA reference renderer instead")  # fmt: skip
     r.set_defaults(func=run_render_voxels)
