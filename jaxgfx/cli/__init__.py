@@ -18,6 +18,7 @@ import os
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from jaxgfx.cli import demo, info, render, skin, terrain, voxels
 from jaxgfx.cli.args import CliError, join_negative_values
@@ -61,7 +62,7 @@ def enable_compilation_cache(path: Path) -> bool:
 class _Parser(argparse.ArgumentParser):
     """An argparse parser whose usage errors are one line: ``PROG: error: MESSAGE``."""
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
