@@ -147,9 +147,9 @@ def mesh_to_trimesh(levels: Sequence[dict], anchor=(0, 0, 0), level: int | None 
     """One level (or all) as a ``trimesh.Trimesh`` for PLY/GLB export (unused vertices dropped)."""
     import trimesh
 
-    sel = list(levels) if level is None else [levels[level]]
     if level is not None and not 0 <= level < len(levels):
         raise ValueError(f"level must be in [0, {len(levels)}), got {level}")
+    sel = list(levels) if level is None else [levels[level]]
     v, n, f, _ = level_arrays(sel, anchor)
     mesh = trimesh.Trimesh(v, f, vertex_normals=n, process=False)
     mesh.remove_unreferenced_vertices()
