@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import jax
@@ -11,6 +12,25 @@ import pytest
 DATA = Path(
     os.environ.get("JAXGFX_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
 )
+
+
+# CLI runs in subprocesses (the sweep tests) keep their compilation cache out of $HOME.
+os.environ.setdefault("JAXGFX_CACHE_DIR", tempfile.mkdtemp(prefix="jaxgfx-test-cache-"))
+
+
+@pytest.fixture(autouse=True)
+def cache_calls(tmp_path, monkeypatch):
+    """Keeps in-process ``jaxgfx.cli.main`` away from the real cache and JAX's global settings.
+
+    main() calls ``enable_compilation_cache(cache_dir())``; here it only records the
+    directory (``$JAXGFX_CACHE_DIR`` points into the test's tmp dir).
+    """
+    import jaxgfx.cli
+
+    calls: list = []
+    monkeypatch.setenv("JAXGFX_CACHE_DIR", str(tmp_path / "jax-cache"))
+    monkeypatch.setattr(jaxgfx.cli, "enable_compilation_cache", calls.append)
+    return calls
 
 
 @pytest.fixture(scope="session")

@@ -15,19 +15,6 @@ import jaxgfx.cli
 from jaxgfx.cli import build_parser, main
 
 
-@pytest.fixture(autouse=True)
-def cache_calls(tmp_path, monkeypatch):
-    """Keeps main() away from the real cache and from JAX's global cache settings.
-
-    main() calls ``enable_compilation_cache(cache_dir())``; here it only records the
-    directory (``$JAXGFX_CACHE_DIR`` points into the test's tmp dir).
-    """
-    calls: list = []
-    monkeypatch.setenv("JAXGFX_CACHE_DIR", str(tmp_path / "jax-cache"))
-    monkeypatch.setattr(jaxgfx.cli, "enable_compilation_cache", calls.append)
-    return calls
-
-
 def test_info(capsys):
     import jax
 
