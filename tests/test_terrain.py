@@ -607,7 +607,7 @@ def test_cli_terrain_errors(tmp_path, capsys):
     assert _terrain_cli(tmp_path, "--function", missing) == 2
     assert "heightmap path" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--resolution", "15") == 2
-    assert "size" in capsys.readouterr().err
+    assert "--resolution" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--levels", "0") == 2
     assert "levels" in capsys.readouterr().err
     assert not (tmp_path / "a.png").exists()
