@@ -125,7 +125,7 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
     t = jnp.asarray(transforms)[:, :3, :]
     columns = jnp.swapaxes(t, -1, -2).reshape(-1, 12).T  # (12, J), columns of [R | t]
     joints = jnp.asarray(joints).astype(jnp.int32)
-    pos, nrm = blend_skin(
+    return blend_skin(
         columns,
         joints.T,
         jnp.asarray(weights, jnp.float32).T,
@@ -133,7 +133,6 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
         jnp.asarray(vertices, jnp.float32).T,
         jnp.asarray(normals, jnp.float32).T,
     )
-    return pos.T, nrm.T
 
 
 # ----------------------------------------------------------------------------------------------

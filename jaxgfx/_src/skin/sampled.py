@@ -245,7 +245,6 @@ def skin_sampled(
         jnp.asarray(binding.rest).T,
         jnp.asarray(binding.rest_normal).T,
     )
-    pos, nrm = pos.T, nrm.T
     if not (radial or rect):
         return pos, nrm
     style = jax.tree_util.tree_map(jnp.asarray, style)
