@@ -152,8 +152,11 @@ def numba_lbs():
 
 
 def copy_rate(nbytes: int, repeats: int) -> float:
-    """Bytes per second ``numpy.copyto`` moves (read + write), median of ``repeats``."""
-    src = np.ones(max(1, nbytes // 8), np.float32)
+    """Bytes per second ``numpy.copyto`` moves (read + write), median of ``repeats``.
+
+    The array holds half of ``nbytes`` (at least 64 MiB, so the rate is DRAM's, not a cache's).
+    """
+    src = np.ones(max(nbytes, 1 << 27) // 8, np.float32)
     dst = np.empty_like(src)
     np.copyto(dst, src)
     times = []
@@ -227,7 +230,7 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             jax.block_until_ready(f(data, poses_sharded))
             compile_s[key] = time.perf_counter() - t0
-            compiled[key] = functools.partial(lambda p, f=f, d=data: f(d, p), poses_sharded)
+            compiled[key] = lambda _poses, f=f, d=data, p=poses_sharded: f(d, p)
     # the peer: numba prange LBS of the same data (pass 1 by JAX outside its timing)
     joints, weights, rest, rest_normal = (np.asarray(a) for a in methods["LBS (SSD)"][1])
     tables = jax.jit(jax.vmap(lambda p: skin.bone_transforms(rig, p)))(poses)
