@@ -3,7 +3,7 @@
 Both blend 12 affine coefficients per vertex (the columns of ``[R | t]``) from a small table and
 apply them to the bind position and normal.  The per-vertex references (:func:`lbs_vertex`,
 :func:`skin_vertex_sampled`) read as the thesis writes them; vmapped, XLA:CPU compiles them to a
-gather of (V, I, 12) rows and a contraction, about 10x below what the hardware streams.  Here the
+gather of (V, I, 12) rows and a contraction, some 30x slower than the memory bound.  Here the
 same arithmetic runs in a structure-of-arrays layout that XLA:CPU fuses into a few loops:
 
 * the table is stored as coefficient columns (12 or 24, R), so one influence's coefficient is a
@@ -13,10 +13,19 @@ same arithmetic runs in a structure-of-arrays layout that XLA:CPU fuses into a f
   users (it writes each one out, 36-48 passes over V), so positions and normals take their own
   gathers: ``optimization_barrier`` on the indices keeps CSE from merging the two sets.
 
-Measured on a 2-core box (1 M vertices, 4 influences, 64 bones, positions and normals; compile
-excluded, medians of interleaved repeats): vmap of the per-vertex reference 232 ms, SoA gathers
-with shared (multi-use) coefficients 126-191 ms, one (V, 12) row gather per influence 177 ms,
-coefficients materialized as (12, V) 91 ms, one-hot (V, J) @ (J, 12) 647 ms, this kernel 37 ms.
+Measured on a 2-core box (1 M vertices, 4 influences, 64 bones, positions and normals, one pose;
+compile excluded, medians of 7 interleaved repeats; separate runs under varying load, except that
+the 196, 65 and 43 ms come from one run):
+
+* vmap of the per-vertex reference: 196-232 ms;
+* one-hot (V, J) @ (J, 12): 647 ms; one (V, 12) row gather per influence: 177 ms;
+* SoA gathers whose coefficients feed both positions and normals: 126-191 ms (XLA writes each
+  multi-use gather out: 36-48 loops); the same with the (12, V) coefficients materialized: 91 ms;
+* this kernel with (3, V) outputs transposed to (V, 3): 65 ms; stacked last (kept): 43 ms.
+
+For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
+row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices): not kept, the
+kernel keeps the reference's arithmetic.
 """
 
 from __future__ import annotations
