@@ -23,6 +23,10 @@ the 196, 65 and 43 ms come from one run):
   multi-use gather out: 36-48 loops); the same with the (12, V) coefficients materialized: 91 ms;
 * this kernel with (3, V) outputs transposed to (V, 3): 65 ms; stacked last (kept): 43 ms.
 
+A select chain over the J table rows instead of each gather (``where(index == j, col[j], ...)``)
+is shape-dependent: 21.6 against 36.9 ms for the bench's 80 poses x 12,546 vertices with J = 6
+(the comparisons are pose-independent and hoisted), but 103 against 28 ms for one pose of 1 M
+vertices with J = 6 and 350 against 33 ms with J = 24: dropped.
 For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
 row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices): not kept, the
 kernel keeps the reference's arithmetic.
