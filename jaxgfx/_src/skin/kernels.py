@@ -27,6 +27,9 @@ A select chain over the J table rows instead of each gather (``where(index == j,
 is shape-dependent: 21.6 against 36.9 ms for the bench's 80 poses x 12,546 vertices with J = 6
 (the comparisons are pose-independent and hoisted), but 103 against 28 ms for one pose of 1 M
 vertices with J = 6 and 350 against 33 ms with J = 24: dropped.
+Packing two coefficients (LBS) or a row and its slope (sampled) into one complex64 gather halves
+the gathers but not the time: 50.2 against 56.1 ms (LBS) and 83.7 against 86.8 ms (sampled), 80
+poses x 12,546 vertices: dropped.
 For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
 row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices): not kept, the
 kernel keeps the reference's arithmetic.
