@@ -18,6 +18,8 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
   :func:`prepare_sampled`, :func:`skin_vertex_sampled`, :func:`skin_sampled`.
 * 5.9 Baselines on the same skeleton -- ``baselines``: :func:`bone_transforms`,
   :func:`linear_blend_skinning` (SSD) and :func:`dual_quaternion_skinning` (Kavan et al.).
+* The mesh kernels behind :func:`linear_blend_skinning` and :func:`skin_sampled` -- ``kernels``
+  (structure-of-arrays layout XLA:CPU fuses; equal to the per-vertex functions vmapped).
 * Styles fitted by gradient descent instead of painted (5.6 made differentiable) -- ``fit``:
   :func:`fit_style`.
 * Skinned glTF characters (JOINTS_0 / WEIGHTS_0, animations) -- ``gltf``:

