@@ -99,26 +99,25 @@ def parse_ints(n: int, what: str = "") -> Callable[[str], tuple[int, ...]]:
     return parse
 
 
-def positive_int(text: str) -> int:
-    """An integer > 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {v}")
-    return v
+def _int_parser(low: int, rule: str) -> Callable[[str], int]:
+    """A parser of one integer ``>= low``; ``rule`` words the bound in its error."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < low:
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {v}")
+        return v
+
+    return parse
 
 
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
+positive_int = _int_parser(1, "> 0")
+"""An integer > 0."""
+nonnegative_int = _int_parser(0, ">= 0")
+"""An integer >= 0."""
 
 
 def bounded_float(lo: float, hi: float, *, open_interval: bool = False) -> Callable[[str], float]:
@@ -138,9 +137,8 @@ def bounded_float(lo: float, hi: float, *, open_interval: bool = False) -> Calla
     return parse
 
 
-def parse_fov(text: str) -> float:
-    """A field of view in degrees, strictly between 0 and 180."""
-    return bounded_float(0.0, 180.0, open_interval=True)(text)
+parse_fov = bounded_float(0.0, 180.0, open_interval=True)
+"""A field of view in degrees, strictly between 0 and 180."""
 
 
 _AA = {"1x1": (1, 1), "2x1": (2, 1), "2x2": (2, 2)}

@@ -26,11 +26,15 @@ from jaxgfx.cli.args import (
 __all__ = ["register", "run_render", "run_sweep", "contact_sheet"]
 
 
+def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius (half the diagonal) of the bounding box."""
+    lo, hi = vertices.min(0), vertices.max(0)
+    return 0.5 * (lo + hi), float(np.linalg.norm(hi - lo)) * 0.5 + 1e-6
+
+
 def _framing(vertices: np.ndarray, fov: float) -> tuple[np.ndarray, float]:
     """Centre of the bounding box and the distance that frames it at ``fov`` degrees."""
-    lo, hi = vertices.min(0), vertices.max(0)
-    center = 0.5 * (lo + hi)
-    radius = float(np.linalg.norm(hi - lo)) * 0.5 + 1e-6
+    center, radius = _bounds(vertices)
     return center, radius / math.sin(math.radians(fov) / 2) * 1.1
 
 
@@ -39,8 +43,7 @@ def _camera_for(vertices: np.ndarray, args: argparse.Namespace):
 
     w, h = args.size
     if args.camera is not None:
-        lo, hi = vertices.min(0), vertices.max(0)
-        radius = float(np.linalg.norm(hi - lo)) * 0.5 + 1e-6
+        _, radius = _bounds(vertices)
         x, y, z, yaw, pitch = args.camera
         return camera_from_degrees(
             [x, y, z], yaw, pitch, 0.0, args.fov, w, h, radius * 1e-3, radius * 1e3
