@@ -9,7 +9,8 @@ passes share one camera and meet in the depth buffer, with sky and fog (2.3-2.4)
 
 World units are level-0 terrain voxels, y up.  Every object is placed from the terrain
 function itself: :func:`column_top` scans the voxel columns under the object's footprint and
-the object's lowest voxel layer (or vertex) is set on the highest of them, so nothing floats.
+the object's lowest voxel layer is set on the lowest of them (a mesh is lifted until no vertex
+is below the ground), so nothing floats.
 :class:`Placement` records what was placed where; the tests check it against the terrain.
 """
 
@@ -42,7 +43,7 @@ __all__ = [
     "forest_and_props",
     "FoxCharacter",
     "fox_character",
-    "pose_fox",
+    "bushy_tail_style",
     "Demo",
     "build_demo",
 ]
@@ -176,8 +177,8 @@ def stand_voxels(vox: raycast.Voxels, fn, at_xz, unit: float, origin, y_range) -
     """Integer offset (in object voxels) that puts ``vox`` on the ground at world ``at_xz``.
 
     The object's footprint centre goes to ``at_xz``; its lowest voxel layer is set on the
-    highest terrain column under that layer, so no part of the bottom floats (the rest of
-    the layer is buried by the slope).
+    lowest terrain column under that layer, so no part of the bottom floats (on a slope the
+    uphill side of the layer is buried, as a trunk or a barrel dug in would be).
 
     Args:
         vox: the object.
@@ -196,7 +197,7 @@ def stand_voxels(vox: raycast.Voxels, fn, at_xz, unit: float, origin, y_range) -
     oz = int(round((at_xz[1] - origin[2]) / unit - Z / 2))
     wx = origin[0] + (bottom[:, 0] + ox + 0.5) * unit
     wz = origin[2] + (bottom[:, 2] + oz + 0.5) * unit
-    g = ground_at(fn, wx, wz, y_range).max()
+    g = ground_at(fn, wx, wz, y_range).min()
     oy = int(np.floor((g - origin[1]) / unit)) - int(bottom[0, 1])
     return np.array([ox, oy, oz])
 
@@ -432,6 +433,15 @@ FOX_WALK = (7.62, 8.72)
 """Seconds of the fox clip that hold one walk cycle (the clip is survey, walk, run)."""
 
 
+def bushy_tail_style(strength: float = 0.45, size: tuple[int, int] = (8, 16)) -> skin.Style:
+    """A deformation style for a tail (thesis 5.6): the radial texture swells mid-tail."""
+    rows, cols = size
+    x = np.linspace(0.0, 1.0, cols)[None, :]
+    swell = np.broadcast_to(1.0 + strength * np.sin(np.pi * x) ** 1.5, (rows, cols))
+    ones = np.ones((rows, cols))
+    return skin.make_style(np.stack([ones, ones, swell]), np.ones((3, cols)))
+
+
 def _yaw_matrix(direction) -> np.ndarray:
     """Rotation about +y taking +z to ``direction`` (x, z)."""
     a = np.arctan2(direction[0], direction[1])
@@ -469,13 +479,6 @@ def fox_character(path, at_xz, heading, scale: float = 0.9) -> FoxCharacter:
     return FoxCharacter(g, col, _yaw_matrix(heading), float(scale), np.asarray(at_xz, np.float64))
 
 
-def pose_fox(fox: FoxCharacter, time: float) -> np.ndarray:
-    """(J, 3, 4) float32 joint matrices of the fox clip at ``time`` seconds (host)."""
-    g = fox.skin
-    mats = skin.joint_globals(g, skin.sample_animation(g, float(time))) @ g.inverse_bind
-    return np.asarray(mats[:, :3, :], np.float32)
-
-
 def _character(root: Path | None, tfn, stage: np.ndarray, fwd: np.ndarray, y_range):
     """The character pass, its placement, a description and the animation for the GIF."""
     from jaxgfx.scene import character_pose, demo_character_pass
@@ -486,8 +489,9 @@ def _character(root: Path | None, tfn, stage: np.ndarray, fwd: np.ndarray, y_ran
     if path is not None and path.is_file():
         fox = fox_character(path, at, side)
         g = fox.skin
-        lbs = jax.jit(skin.linear_blend_skinning)
-        arrays = tuple(jnp.asarray(a) for a in (g.vertices, g.normals, g.joints, g.weights))
+        chain = skin.gltf_spline_chain(g)  # the three tail joints -> one spline (5.9.3)
+        style = bushy_tail_style()
+        sk = jax.jit(skin.skin_gltf_chain)
         faces, colors = g.faces, fox.colors
         rot, scale = fox.rotation, fox.scale
         t0, t1 = FOX_WALK
@@ -495,12 +499,13 @@ def _character(root: Path | None, tfn, stage: np.ndarray, fwd: np.ndarray, y_ran
 
         def model(phase):
             t = t0 + (t1 - t0) * phase
-            p, n = lbs(jnp.asarray(pose_fox(fox, t)), *arrays)
+            p, n = sk(chain, skin.gltf_pose(g, chain, t), style)
             return np.asarray(p), np.asarray(n), speed * (t1 - t0) * phase
 
         desc = (
-            f"the glTF fox ({len(g.vertices)} vertices, {len(g.joint_names)} joints) walking, "
-            "skinned by its bones"
+            f"the glTF fox ({len(g.vertices)} vertices, {len(g.joint_names)} joints) walking: "
+            "linear blend skinning, with its three tail joints replaced by one spline that "
+            "carries a bushy-tail style (5.9.3)"
         )
     else:
         arm = demo_character_pass(offset=(0.0, 0.0, 0.0), scale=1.0)

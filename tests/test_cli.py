@@ -28,19 +28,6 @@ def test_info(capsys):
     assert info["local_devices"] == jax.local_device_count() >= 1
 
 
-def test_demo_writes_images_and_timing(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--size", "48x32", "--out", str(out)]) == 0
-    color = iio.imread(out / "color.png")
-    depth = iio.imread(out / "depth.png")
-    assert color.shape == (32, 48, 3) and depth.shape == (32, 48)
-    assert color.std() > 5  # a picture, not a flat fill
-    assert depth.max() > depth.min()
-    timing = json.loads((out / "timing.json").read_text())
-    assert {r["stage"] for r in timing["stages"]} >= {"polygon pass (rasterizer)", "frame total"}
-    assert "| stage |" in (out / "timing.md").read_text()
-
-
 def test_render_mesh_with_depth(tmp_path, capsys):
     mesh_file = tmp_path / "ico.ply"
     trimesh.creation.icosphere(subdivisions=2).export(mesh_file)
