@@ -36,7 +36,8 @@ __all__ = [
     "find_data",
     "Placement",
     "column_top",
-    "ground_at",
+    "GroundPatch",
+    "ground_patch",
     "fractal_heights",
     "demo_heightmap",
     "stand_voxels",
@@ -100,19 +101,20 @@ class Placement:
     unit: float
 
 
-def column_top(fn, xz, y_range: tuple[int, int]) -> np.ndarray:
+def column_top(fn, xz: jax.Array, y_range: tuple[int, int]) -> jax.Array:
     """Top of the solid in integer voxel columns: the lowest air voxel above the highest solid one.
+
+    Pure; callers jit it with ``y_range`` static (it sets the scan's shape).
 
     Args:
         fn: a terrain function f: Z^3 -> {0, 1} (thesis 3.3).
-        xz: (K, 2) integer column positions.
+        xz: (K, 2) int32 column positions.
         y_range: ``(lo, hi)`` the scanned heights; the terrain's surface must lie inside.
 
     Returns:
-        (K,) int: y of the first voxel above the highest solid voxel (``lo`` if none).
+        (K,) int32: y of the first voxel above the highest solid voxel (``lo`` if none).
     """
     lo, hi = (int(v) for v in y_range)
-    xz = np.asarray(xz, np.int64).reshape(-1, 2)
     ys = jnp.arange(lo, hi, dtype=jnp.int32)
 
     def one(c):
@@ -120,13 +122,44 @@ def column_top(fn, xz, y_range: tuple[int, int]) -> np.ndarray:
         solid = jax.vmap(fn)(pts)
         return jnp.max(jnp.where(solid, ys + 1, lo))
 
-    return np.asarray(jax.jit(jax.vmap(one))(jnp.asarray(xz, jnp.int32)))
+    return jax.vmap(one)(jnp.asarray(xz, jnp.int32))
 
 
-def ground_at(fn, x, z, y_range) -> np.ndarray:
-    """Terrain surface height under world points ``(x, z)`` (column of the voxel they lie in)."""
-    xz = np.stack([np.floor(np.asarray(x)), np.floor(np.asarray(z))], -1).astype(np.int64)
-    return column_top(fn, xz.reshape(-1, 2), y_range).reshape(np.shape(x))
+class GroundPatch(NamedTuple):
+    """Column tops of the terrain over a rectangle of columns (host lookups while placing).
+
+    Attributes:
+        x0, z0: world x, z of the first column.
+        tops: (NX, NZ) int, :func:`column_top` of every column in the rectangle.
+    """
+
+    x0: int
+    z0: int
+    tops: np.ndarray
+
+    def at(self, x, z) -> np.ndarray:
+        """Surface height under world points ``(x, z)`` (the column each lies in).
+
+        Raises:
+            ValueError: a point outside the patch.
+        """
+        i = np.floor(np.asarray(x)).astype(np.int64) - self.x0
+        k = np.floor(np.asarray(z)).astype(np.int64) - self.z0
+        nx, nz = self.tops.shape
+        if np.any((i < 0) | (i >= nx) | (k < 0) | (k >= nz)):
+            raise ValueError("a point lies outside the ground patch")
+        return self.tops[i, k]
+
+
+def ground_patch(fn, centre_xz, radius: int, y_range) -> GroundPatch:
+    """:class:`GroundPatch` of the ``(2 radius)^2`` columns around ``centre_xz`` (one scan)."""
+    x0 = int(np.floor(centre_xz[0])) - radius
+    z0 = int(np.floor(centre_xz[1])) - radius
+    i, k = np.meshgrid(np.arange(2 * radius), np.arange(2 * radius), indexing="ij")
+    xz = np.stack([i.ravel() + x0, k.ravel() + z0], -1).astype(np.int32)
+    scan = jax.jit(column_top, static_argnums=2)
+    tops = np.asarray(scan(fn, jnp.asarray(xz), tuple(int(v) for v in y_range)))
+    return GroundPatch(x0, z0, tops.reshape(2 * radius, 2 * radius))
 
 
 # --------------------------------------------------------------------------------------
@@ -173,7 +206,9 @@ def _bottom_layer(vox: raycast.Voxels) -> np.ndarray:
     return c[c[:, 1] == c[:, 1].min()]
 
 
-def stand_voxels(vox: raycast.Voxels, fn, at_xz, unit: float, origin, y_range) -> np.ndarray:
+def stand_voxels(
+    vox: raycast.Voxels, ground: GroundPatch, at_xz, unit: float, origin
+) -> np.ndarray:
     """Integer offset (in object voxels) that puts ``vox`` on the ground at world ``at_xz``.
 
     The object's footprint centre goes to ``at_xz``; its lowest voxel layer is set on the
@@ -182,11 +217,10 @@ def stand_voxels(vox: raycast.Voxels, fn, at_xz, unit: float, origin, y_range) -
 
     Args:
         vox: the object.
-        fn: the terrain function.
+        ground: the terrain's column tops around the object.
         at_xz: (2,) world x, z.
         unit: world units per object voxel.
         origin: (3,) world position of the combined scene's voxel (0, 0, 0).
-        y_range: heights scanned by :func:`column_top`.
 
     Returns:
         (3,) int offset of the object's voxels in the combined scene.
@@ -197,7 +231,7 @@ def stand_voxels(vox: raycast.Voxels, fn, at_xz, unit: float, origin, y_range) -
     oz = int(round((at_xz[1] - origin[2]) / unit - Z / 2))
     wx = origin[0] + (bottom[:, 0] + ox + 0.5) * unit
     wz = origin[2] + (bottom[:, 2] + oz + 0.5) * unit
-    g = ground_at(fn, wx, wz, y_range).min()
+    g = ground.at(wx, wz).min()
     oy = int(np.floor((g - origin[1]) / unit)) - int(bottom[0, 1])
     return np.array([ox, oy, oz])
 
@@ -209,7 +243,7 @@ def _shrink(vox: raycast.Voxels, times: int) -> raycast.Voxels:
 
 
 def forest_and_props(
-    fn, centre_xz, y_range, *, key: jax.Array, data: Path | None, unit: float = 1 / 10
+    ground: GroundPatch, centre_xz, *, key: jax.Array, data: Path | None, unit: float = 1 / 10
 ):
     """Trees (procedural, 4.3.3) and kv6 sprites on the ground around ``centre_xz``.
 
@@ -235,11 +269,11 @@ def forest_and_props(
                     (name, _shrink(raycast.load_kv6(str(path)), shrink), (cx + dx, cz + dz))
                 )
                 names.append(name)
-    lo = np.array([cx - 32.0, float(y_range[0]), cz - 32.0])
+    lo = np.array([cx - 32.0, float(ground.tops.min()) - 8.0, cz - 32.0])
     origin = np.floor(lo)
     coords, colors, places = [], [], []
     for name, vox, xz in spots:
-        off = stand_voxels(vox, fn, xz, unit, origin, y_range)
+        off = stand_voxels(vox, ground, xz, unit, origin)
         c = np.asarray(vox.coords) + off
         coords.append(c)
         colors.append(np.asarray(vox.colors))
@@ -354,17 +388,22 @@ def build_demo(
     # The camera stands north of the summit, looking at it over the slope.
     r0, c0 = np.unravel_index(np.argmax(h), h.shape)
     summit = np.array([ox + (c0 + 0.5) * cell, 0.0, oz + (r0 + 0.5) * cell])
-    summit[1] = float(ground_at(tfn, summit[0], summit[2], y_range))
-    back = np.array([0.0, 0.0, -1.0]) * 0.30 * rows * cell  # row 0 is north (-z)
-    eye = summit + back
-    eye[1] = float(ground_at(tfn, eye[0], eye[2], y_range)) + 5.0
-    fwd = (summit - eye) * np.array([1.0, 0.0, 1.0])
-    fwd = fwd / np.linalg.norm(fwd)
+    eye = summit + np.array([0.0, 0.0, -1.0]) * 0.30 * rows * cell  # row 0 is north (-z)
+    fwd = (summit - eye) / np.linalg.norm(summit - eye)
     target = eye + 30.0 * fwd
-    target[1] = float(ground_at(tfn, target[0], target[2], y_range)) + 3.0
+    stage = eye + 28.0 * fwd  # where the objects stand, in front of the camera
+    scan = jax.jit(column_top, static_argnums=2)
+    tops = np.asarray(
+        scan(
+            tfn,
+            jnp.asarray(np.floor([p[[0, 2]] for p in (summit, eye, target)]), jnp.int32),
+            y_range,
+        )
+    )
+    summit[1], eye[1], target[1] = tops[0], tops[1] + 5.0, tops[2] + 3.0
     far = 8.0 * size * (1 << levels)
     cam = look_at(eye, target, 55.0, width, height, 0.2, far)
-    stage = eye + fwd * 28.0  # where the objects stand, in front of the camera
+    ground = ground_patch(tfn, stage[[0, 2]], 40, y_range)
 
     pipe = terrain.ClipBoxPipeline(tfn, size=size, levels=levels, smoothing=4)
     viewer = tuple(int(round(c)) for c in eye)
@@ -379,10 +418,8 @@ def build_demo(
     terrain_pass = generate_terrain(viewer)
     first_build = time.perf_counter() - t0  # includes tracing and compiling every step
 
-    objects, places, obj_desc = forest_and_props(
-        tfn, stage[[0, 2]], y_range, key=k_trees, data=root
-    )
-    character, ch_place, ch_desc, animate = _character(root, tfn, stage, fwd, y_range)
+    objects, places, obj_desc = forest_and_props(ground, stage[[0, 2]], key=k_trees, data=root)
+    character, ch_place, ch_desc, animate = _character(root, ground, stage, fwd)
     places = places + [ch_place]
     render = jax.jit(render_mesh_pass)
     passes = [
@@ -449,9 +486,9 @@ def _yaw_matrix(direction) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], np.float32)
 
 
-def _lift_onto_ground(points: np.ndarray, tfn, y_range) -> float:
+def _lift_onto_ground(points: np.ndarray, ground: GroundPatch) -> float:
     """Vertical shift that sets the lowest point (relative to the ground under it) on the ground."""
-    g = ground_at(tfn, points[:, 0], points[:, 2], y_range)
+    g = ground.at(points[:, 0], points[:, 2])
     return float(np.max(g - points[:, 1]))
 
 
@@ -479,7 +516,7 @@ def fox_character(path, at_xz, heading, scale: float = 0.9) -> FoxCharacter:
     return FoxCharacter(g, col, _yaw_matrix(heading), float(scale), np.asarray(at_xz, np.float64))
 
 
-def _character(root: Path | None, tfn, stage: np.ndarray, fwd: np.ndarray, y_range):
+def _character(root: Path | None, ground: GroundPatch, stage: np.ndarray, fwd: np.ndarray):
     """The character pass, its placement, a description and the animation for the GIF."""
     from jaxgfx.scene import character_pose, demo_character_pass
 
@@ -535,7 +572,7 @@ def _character(root: Path | None, tfn, stage: np.ndarray, fwd: np.ndarray, y_ran
         p = (p @ rot.T) * scale
         p[:, 0] += at[0] + walked * side[0]
         p[:, 2] += at[1] + walked * side[1]
-        p[:, 1] += _lift_onto_ground(p, tfn, y_range)
+        p[:, 1] += _lift_onto_ground(p, ground)
         return p.astype(np.float32), (n @ rot.T).astype(np.float32)
 
     def frame(cam, phase):

@@ -69,7 +69,8 @@ def main(argv=None) -> int:
     out: dict[str, str] = {}
 
     # 1. The demo frame, every pass and the composite (what `jaxgfx demo` draws).
-    demo = S.build_demo(96, 72, key=jax.random.key(0))
+    build_demo = getattr(_mod("jaxgfx.showcase", "jaxgfx.scene"), "build_demo")
+    demo = build_demo(96, 72, key=jax.random.key(0))
     frames = []
     for name, fn, fn_args, _ in demo.passes:
         res = jax.block_until_ready(fn(*fn_args))
