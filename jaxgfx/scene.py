@@ -267,8 +267,8 @@ def demo_terrain(*, key: jax.Array, size: int = 32, levels: int = 3):
         cx, cz, a, w = (cx - 0.5) * n, (cz - 0.5) * n, -6 + 20 * a, 8 + 16 * w
         h += a * np.exp(-((gx - cx) ** 2 + (gz - cz) ** 2) / (2 * w * w))
     h *= np.clip((np.hypot(gx, gz) - 48) / 24, 0, 1)
-    # The heightmap tiles with period n; centre the flat part on the origin.
-    hills = terrain.heightmap_terrain(np.fft.ifftshift(h), base=int(np.floor(h.min())))
+    # Centred on the origin (the flat part) and tiled with period n; y = h.
+    hills = terrain.heightmap_terrain(h, vertical_scale=1.0, base=float(h.min()), wrap=True)
     rocks = terrain.random_csg_terrain(
         key=k_rocks,
         count=160,
