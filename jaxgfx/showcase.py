@@ -189,11 +189,13 @@ def fractal_heights(key: jax.Array, n: int = 256, *, relief: float = 900.0) -> n
 
 
 def demo_heightmap(data: Path | None, *, key: jax.Array):
-    """(heights (H, W) in metres, horizontal spacing in metres, source description)."""
+    """(the DEM as :class:`~jaxgfx.terrain.HeightmapData`, or (H, W) metres on a 30 m grid;
+    a description of the source)."""
     if data is not None and (data / "terrain" / "SainteHelens.dem").is_file():
-        h = terrain.load_heightmap(data / "terrain" / "SainteHelens.dem")
-        return h, 30.0, "St Helens USGS DEM (466 x 327 samples, 30 m)"
-    return fractal_heights(key), 30.0, "procedural fractal heightmap (256 x 256, 30 m)"
+        dem = terrain.read_heightmap(data / "terrain" / "SainteHelens.dem")
+        rows, cols = dem.heights.shape
+        return dem, f"St Helens USGS DEM ({rows} x {cols} samples, 30 m)"
+    return fractal_heights(key), "procedural fractal heightmap (256 x 256, 30 m)"
 
 
 # --------------------------------------------------------------------------------------
@@ -243,9 +245,18 @@ def _shrink(vox: raycast.Voxels, times: int) -> raycast.Voxels:
 
 
 def forest_and_props(
-    ground: GroundPatch, centre_xz, *, key: jax.Array, data: Path | None, unit: float = 1 / 10
+    ground: GroundPatch,
+    centre_xz,
+    *,
+    key: jax.Array,
+    data: Path | None,
+    trees: int = 16,
+    unit: float = 1 / 10,
 ):
     """Trees (procedural, 4.3.3) and kv6 sprites on the ground around ``centre_xz``.
+
+    The camera is taken to look along +z from 28 units before ``centre_xz``: trees fill a
+    fan in front of it, clear of the kv6 sprites and the character's lane.
 
     Returns:
         ``(VoxelPass, [Placement], description)``; one RLE scene with two mip levels.
@@ -253,16 +264,20 @@ def forest_and_props(
     kinds = [raycast.procedural_tree(64, key=k, depth=4) for k in jax.random.split(key, 3)]
     rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**30)))
     cx, cz = centre_xz
-    spots = [
-        ("tree", kinds[i % 3], (cx + dx, cz + dz))
-        for i, (dx, dz) in enumerate(
-            [(-14, 6), (-9, 14), (-3, 19), (5, 21), (12, 16), (17, 8), (-18, -2), (20, 0)]
-        )
-    ]
-    spots = [(n, v, (x + rng.uniform(-1, 1), z + rng.uniform(-1, 1))) for n, v, (x, z) in spots]
+    props = (("barrel", 2, 3.0, 4.0), ("caco", 1, -6.0, 8.0))  # kv6 name, mips down, dx, dz
+    spots: list = []
+    taken = [(dx, dz) for _, _, dx, dz in props] + [(float(k), -14.0) for k in range(-6, 7, 3)]
+    while len(spots) < trees:
+        # A fan in front of the camera (it looks along +z from 28 units before the centre).
+        dz = rng.uniform(-10.0, 22.0)
+        dx = rng.uniform(-0.62, 0.62) * (28.0 + dz)
+        if min(np.hypot(dx - a, dz - b) for a, b in taken) < 4.5:
+            continue
+        taken.append((dx, dz))
+        spots.append(("tree", kinds[len(spots) % 3], (cx + dx, cz + dz)))
     names = []
     if data is not None and (data / "voxlap").is_dir():
-        for name, shrink, dx, dz in (("barrel", 2, 3.0, 6.0), ("caco", 1, -6.0, 9.0)):
+        for name, shrink, dx, dz in props:
             path = data / "voxlap" / f"{name}.kv6"
             if path.is_file():
                 spots.append(
@@ -377,18 +392,19 @@ def build_demo(
 
     root = find_data(data)
     k_map, k_trees, k_ssn = jax.random.split(key, 3)
-    h, spacing, map_desc = demo_heightmap(root, key=k_map)
-    rows, cols = h.shape
-    vs = cell / spacing  # true proportions: voxels per metre, vertically as horizontally
-    relief = float(h.max() - h.min()) * vs
-    tfn = terrain.heightmap_terrain(h, vertical_scale=vs, cell=cell, base=0)
-    ox, oz = 0.0, 0.0  # world x, z of sample (0, 0)'s corner
-    y_range = (-2, int(np.ceil(relief)) + 4)
+    hm, map_desc = demo_heightmap(root, key=k_map)
+    # True proportions: the DEM says its spacing; the procedural map is on a 30 m grid.
+    vs = None if isinstance(hm, terrain.HeightmapData) else cell / 30.0
+    tfn = terrain.heightmap_terrain(hm, cell=cell, vertical_scale=vs)
+    m = tfn.mapping
+    h = np.asarray(hm.heights if isinstance(hm, terrain.HeightmapData) else hm)
+    relief = float(np.max(np.asarray(tfn.heights)))  # voxels above base
+    y_range = (int(np.floor(m.base)) - 2, int(np.ceil(m.base + relief)) + 4)
 
     # The camera stands north of the summit, looking at it over the slope.
     r0, c0 = np.unravel_index(np.argmax(h), h.shape)
-    summit = np.array([ox + (c0 + 0.5) * cell, 0.0, oz + (r0 + 0.5) * cell])
-    eye = summit + np.array([0.0, 0.0, -1.0]) * 0.30 * rows * cell  # row 0 is north (-z)
+    summit = m.sample_position(r0, c0, h[r0, c0])
+    eye = summit + np.array([0.0, 0.0, -1.0]) * 0.24 * m.shape[0] * m.cell  # row 0 is north
     fwd = (summit - eye) / np.linalg.norm(summit - eye)
     target = eye + 30.0 * fwd
     stage = eye + 28.0 * fwd  # where the objects stand, in front of the camera
@@ -412,7 +428,7 @@ def build_demo(
         # Host-driven Clip-Box build (sampling, faces, smoothing, normals, welding).
         state = pipe.init(viewer)
         jax.block_until_ready(state)
-        return _terrain_pass(pipe.views(state), 0.0, relief)
+        return _terrain_pass(pipe.views(state), m.base, m.base + relief)
 
     t0 = time.perf_counter()
     terrain_pass = generate_terrain(viewer)
@@ -449,7 +465,7 @@ def build_demo(
         f"{int(terrain_pass.faces.shape[0])} triangles; static objects: {obj_desc}; "
         f"character: {ch_desc}"
     )
-    comp = jax.jit(lambda fs: fog(composite(fs), density=0.6 / (size * (1 << levels))))
+    comp = jax.jit(lambda fs: fog(composite(fs), density=4.0 / (size * (1 << levels))))
     credits = tuple(
         c
         for c, used in (
