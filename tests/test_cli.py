@@ -235,6 +235,9 @@ def test_bad_numbers(tmp_path, capsys, ico):
         (["skin", "--twist", "-361"], "--twist"),
         (["skin", "--bend", "inf"], "--bend"),
         (["sweep", ico, "--n", "0"], "--n"),
+        (["demo", "--frames", "-1"], "--frames"),
+        (["demo", "--frames", "100000"], "--frames"),
+        (["demo", "--data", str(tmp_path / "nowhere"), "--out", str(tmp_path)], "--data"),
     ]  # fmt: skip
     for argv, option in cases:
         assert main(argv) == 2, argv

@@ -8,12 +8,16 @@ from jaxgfx.cli.args import (
     PIXEL_BYTES,
     CliError,
     check_image,
+    check_memory,
     check_out_dir,
     nonnegative_int,
     parse_size,
 )
 
 __all__ = ["register", "run"]
+
+MAX_FRAMES = 240
+"""The most frames ``demo.gif`` takes (ten seconds of walking at 24 frames per second)."""
 
 
 def register(subparsers) -> None:
@@ -34,7 +38,7 @@ def register(subparsers) -> None:
         "--frames",
         type=nonnegative_int,
         default=8,
-        help="frames of the walking animation in demo.gif (0: no GIF)",
+        help="frames of the walking animation in demo.gif, 0..240 (0: no GIF; default 8)",
     )
     d.set_defaults(func=run)
 
@@ -43,6 +47,10 @@ def run(args: argparse.Namespace) -> int:
     """Renders every pass with one camera, composites them and writes the timing table."""
     out = check_out_dir("--out", args.out)
     check_image(args.size, 4 * PIXEL_BYTES)  # several passes + the composite
+    if args.frames > MAX_FRAMES:
+        raise CliError(f"--frames must be at most {MAX_FRAMES}, got {args.frames}")
+    w, h = args.size
+    check_memory("--frames", str(args.frames), float(args.frames) * w * h * 3)
     from jaxgfx.showcase import find_data
 
     try:
@@ -58,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
     from jaxgfx.io import atomic_write, save_json, save_png
     from jaxgfx.showcase import build_demo
 
-    w, h = args.size
     demo = build_demo(w, h, key=jax.random.key(args.seed), data=data)
     rows, frames, names = [], [], []
     for name, fn, fn_args, first in demo.passes:
