@@ -342,3 +342,14 @@ def test_load_mesh_up_axis(tmp_path):
     assert load_mesh(path, up="z").is_winding_consistent
     with pytest.raises(ValueError, match="up must be"):
         load_mesh(path, up="-z")
+
+
+def test_render_up_z_stands_a_scan_upright(tmp_path):
+    path = tmp_path / "box.ply"
+    trimesh.creation.box(extents=(2.0, 1.0, 6.0)).export(path)  # a z-up scan: tall along z
+    npy = tmp_path / "d.npy"
+    argv = ["render", str(path), "--up", "z", "--size", "24x24", "--depth", str(npy)]
+    assert main([*argv, "--out", str(tmp_path / "a.png")]) == 0
+    rows, cols = np.nonzero(np.isfinite(np.load(npy)))
+    # upright: the silhouette is 6 : 2 tall (lying, as y-up, it is about as tall as wide: 9 : 9)
+    assert np.ptp(rows) > 2.0 * np.ptp(cols)

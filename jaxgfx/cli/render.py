@@ -92,16 +92,15 @@ def _skinned_scene(args: argparse.Namespace):
     from jaxgfx.scene import merge_mesh_passes, mesh_pass
 
     gskin = skin.load_gltf_skin(args.mesh)
-    if args.time is None:
+    t = getattr(args, "time", None)  # sweep has no --time: the bind pose
+    if t is None:
         local = gskin.rest_trs
     elif gskin.duration <= 0:
-        raise CliError(f"--time {args.time:g}: {args.mesh} has no animation")
-    elif not 0.0 <= args.time <= gskin.duration:
-        raise CliError(
-            f"--time {args.time:g} is outside the clip, which lasts [0, {gskin.duration:g}] s"
-        )
+        raise CliError(f"--time {t:g}: {args.mesh} has no animation")
+    elif not 0.0 <= t <= gskin.duration:
+        raise CliError(f"--time {t:g} is outside the clip, which lasts [0, {gskin.duration:g}] s")
     else:
-        local = skin.sample_animation(gskin, args.time)
+        local = skin.sample_animation(gskin, t)
     mats = skin.joint_matrices(gskin, local)
     pos, nrm = skin.linear_blend_skinning(
         mats, gskin.vertices, gskin.normals, gskin.joints, gskin.weights
@@ -111,7 +110,7 @@ def _skinned_scene(args: argparse.Namespace):
     passes = [mesh_pass(np.asarray(pos) @ rot.T, gskin.faces, color, np.asarray(nrm) @ rot.T)]
     for m in skin.load_gltf_meshes(args.mesh):
         passes.append(mesh_pass(m.vertices @ rot.T, m.faces, m.colors))
-    info = dict(skinned_vertices=len(gskin.vertices), time=args.time, props=len(passes) - 1)
+    info = dict(skinned_vertices=len(gskin.vertices), time=t, props=len(passes) - 1)
     return merge_mesh_passes(passes), info
 
 
@@ -180,13 +179,14 @@ def run_sweep(args: argparse.Namespace) -> int:
     # a chunk of frames in flight, plus every frame's colour + depth for the contact sheet
     need = float(w) * h * (min(args.chunk, args.n) * PIXEL_BYTES + args.n * 8)
     check_memory("--size", f"{w}x{h} (with --n {args.n}, --chunk {args.chunk})", need)
-    m = load_mesh(args.mesh, up=args.up)
-    v, f, c = mesh_arrays(m)
-    center, dist = _framing(v, args.fov)
+    if _is_skinned_glb(args.mesh):  # a glTF character at its bind pose, with its props
+        mp, _ = _skinned_scene(args)
+    else:
+        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
+    center, dist = _framing(np.asarray(mp.vertices), args.fov)
     cams = orbit_cameras(
         center, dist, args.n, args.elevation, args.fov, w, h, dist * 1e-3, dist * 10
     )
-    mp = mesh_pass(v, f, c)
 
     def render_one(cam):
         fr = composite([background(cam), render_mesh_pass(cam, mp)])
@@ -242,7 +242,9 @@ def register(subparsers) -> None:
     r.set_defaults(func=run_render)
 
     s = subparsers.add_parser("sweep", help="orbit N cameras around a mesh (resumable)")
-    s.add_argument("mesh", help="PLY/OBJ/GLB/STL file")
+    s.add_argument(
+        "mesh", help="PLY/OBJ/GLB/STL file; a .glb's skinned mesh is drawn at its bind pose"
+    )
     add_up_argument(s)
     s.add_argument("--n", type=int, default=12, help="number of cameras")
     s.add_argument("--out", default="sweep", help="output directory (frames, chunks, sheet)")
