@@ -23,7 +23,8 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
 * Styles fitted by gradient descent instead of painted (5.6 made differentiable) -- ``fit``:
   :func:`fit_style`.
 * Skinned glTF characters (JOINTS_0 / WEIGHTS_0, animations) -- ``gltf``:
-  :func:`load_gltf_skin`, :func:`sample_animation`, :func:`joint_matrices`.
+  :func:`load_gltf_skin`, :func:`sample_animation`, :func:`joint_matrices`; the file's unskinned
+  meshes (props) at their node transforms: :func:`load_gltf_meshes`.
 * 5.9.3 A bone chain of a glTF character replaced by one spline (fewer control joints) --
   ``chain``: :func:`gltf_spline_chain` (host, once: the spline through three joints' bind origins,
   the binding and weight split), :func:`gltf_pose` (host, per frame: joint matrices, the chain's
@@ -69,9 +70,11 @@ from jaxgfx._src.skin.fit import params_to_style as params_to_style
 from jaxgfx._src.skin.fit import smoothness_penalty as smoothness_penalty
 from jaxgfx._src.skin.fit import style_loss as style_loss
 from jaxgfx._src.skin.fit import style_to_params as style_to_params
+from jaxgfx._src.skin.gltf import GltfMesh as GltfMesh
 from jaxgfx._src.skin.gltf import GltfSkin as GltfSkin
 from jaxgfx._src.skin.gltf import joint_globals as joint_globals
 from jaxgfx._src.skin.gltf import joint_matrices as joint_matrices
+from jaxgfx._src.skin.gltf import load_gltf_meshes as load_gltf_meshes
 from jaxgfx._src.skin.gltf import load_gltf_skin as load_gltf_skin
 from jaxgfx._src.skin.gltf import sample_animation as sample_animation
 from jaxgfx._src.skin.gltf import trs_matrix as trs_matrix
@@ -165,6 +168,8 @@ __all__ = [
     "fit_style",
     "GltfSkin",
     "load_gltf_skin",
+    "GltfMesh",
+    "load_gltf_meshes",
     "trs_matrix",
     "sample_animation",
     "joint_globals",
