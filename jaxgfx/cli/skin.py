@@ -55,10 +55,16 @@ def register(subparsers) -> None:
         help="deformation style, spline only (default: muscle for spline, none otherwise)",
     )
     p.add_argument(
-        "--bend", type=_ANGLE, default=None, help="demo arm: elbow bend in degrees (default 90)"
+        "--bend",
+        type=_ANGLE,
+        default=None,
+        help="demo arm: elbow bend in degrees, |bend| <= 360 (default 90)",
     )
     p.add_argument(
-        "--twist", type=_ANGLE, default=None, help="demo arm: twist in degrees (default 0)"
+        "--twist",
+        type=_ANGLE,
+        default=None,
+        help="demo arm: twist in degrees, |twist| <= 360 (default 0)",
     )
     p.add_argument("--rig", default=None, help="a skinned glTF character (.glb) instead of the arm")
     p.add_argument(
