@@ -40,6 +40,8 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
     :func:`subdivide_mesh` (:class:`SubdividedMesh`).
 3.4.5 / 3.5.3 Drawing the levels (Fig. 3.1 thread 2), ``display.py``:
     :func:`level_views`, :func:`level_arrays`, :func:`render_levels`, :func:`mesh_to_trimesh`.
+3.5.2 Shading by slope and height, fog, sky (the HVOX terrain shader), ``shading.py``:
+    :func:`terrain_colors`, :func:`render_terrain`.
 3.3.1 / 3.4.6 The update driver (Fig. 3.1 thread 1), ``pipeline.py``:
     :class:`ClipBoxPipeline`.
 3.5.4 Concurrent generation and visualization (Fig. 3.1), ``worker.py``:
@@ -100,6 +102,8 @@ from jaxgfx._src.terrain.sampling import as_terrain as as_terrain
 from jaxgfx._src.terrain.sampling import check_terrain as check_terrain
 from jaxgfx._src.terrain.sampling import check_viewer as check_viewer
 from jaxgfx._src.terrain.sampling import sample_terrain as sample_terrain
+from jaxgfx._src.terrain.shading import render_terrain as render_terrain
+from jaxgfx._src.terrain.shading import terrain_colors as terrain_colors
 from jaxgfx._src.terrain.worker import GeometryWorker as GeometryWorker
 
 __all__ = [
@@ -164,6 +168,9 @@ __all__ = [
     "level_arrays",
     "render_levels",
     "mesh_to_trimesh",
+    # shading by slope and height, fog, sky
+    "terrain_colors",
+    "render_terrain",
     # 3.3.1, 3.5.4 driver and geometry thread
     "ClipBoxPipeline",
     "GeometryWorker",

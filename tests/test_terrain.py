@@ -339,6 +339,26 @@ def test_default_viewer_and_check_viewer():
         T.check_viewer(t, (0.5, 1, 2))
 
 
+def test_terrain_colors_by_slope_and_height():
+    flat, steep = [0.0, 1.0, 0.0], [0.8, 0.2, 0.0]
+    steep = list(np.asarray(steep) / np.linalg.norm(steep))
+    v = np.array([[3.0, 2.0, 5.0], [3.0, 98.0, 5.0], [40.0, 50.0, -7.0], [3.0, 98.001, 5.0]])
+    n = np.array([flat, flat, steep, flat])
+    c = np.asarray(T.terrain_colors(v, n, height_range=(0.0, 100.0)))
+    assert c.shape == (4, 3) and c.dtype == np.float32 and np.all((c >= 0) & (c <= 1))
+    grass, snow, rock = c[0], c[1], c[2]
+    assert grass[1] > grass[0] and grass[1] > grass[2]  # green
+    assert snow.min() > 0.7 and np.ptp(snow) < 0.15  # white
+    assert rock[0] >= rock[1] and np.ptp(rock) < 0.3  # grey-brown, not green
+    np.testing.assert_allclose(c[3], c[1], atol=1e-3)  # continuous: no seams between levels
+    bare = np.asarray(T.terrain_colors(v, n, height_range=(0.0, 100.0), snow_line=None))
+    assert bare[1].min() < 0.7
+    with pytest.raises(ValueError, match="height_range"):
+        T.terrain_colors(v, n, height_range=(5.0, 5.0))
+    with pytest.raises(ValueError, match="normals"):
+        T.terrain_colors(v, n[:2], height_range=(0.0, 1.0))
+
+
 @pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
 def test_st_helens_true_proportions():
     d = T.read_heightmap(os.path.join(DATA, "SainteHelens.dem"))
@@ -748,7 +768,8 @@ def _terrain_cli(tmp_path, *extra: str) -> int:
     """``jaxgfx terrain`` through the CLI's entry point, small and fast by default."""
     from jaxgfx.cli import main
 
-    small = ["--function", "saw", "--viewer", "0,24,0", "--resolution", "16", "--levels", "2"]
+    # (x + y + z) mod 1000 = 510: air, 6 voxels above a slab of f_SAW
+    small = ["--function", "saw", "--viewer", "0,510,0", "--resolution", "16", "--levels", "2"]
     size = ["--size", "32x24", "--smoothing", "2", "--out", str(tmp_path / "a.png")]
     return main(["terrain", *small, *size, *extra])
 
@@ -763,19 +784,59 @@ def test_cli_terrain_errors(tmp_path, capsys):
     assert "--resolution" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--levels", "0") == 2
     assert "levels" in capsys.readouterr().err
+    assert _terrain_cli(tmp_path, "--cell", "2") == 2
+    assert "--cell applies to --function heightmap" in capsys.readouterr().err
+    assert _terrain_cli(tmp_path, "--depth", str(tmp_path / "d.png")) == 2
+    assert "--depth" in capsys.readouterr().err
+    assert _terrain_cli(tmp_path, "--viewer", "0,24,0") == 2  # inside a slab
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--viewer (0, 24, 0) is inside solid ground" in err
     assert not (tmp_path / "a.png").exists()
 
 
-def test_cli_terrain_renders_and_exports(tmp_path):
+def _hill(tmp_path):
+    """A 20 x 24 Gaussian hill (grey levels 10..40) saved as .npy."""
+    z, x = np.mgrid[0:20, 0:24]
+    h = 10 + 30 * np.exp(-((x - 14.0) ** 2 + (z - 8.0) ** 2) / 40.0)
+    path = tmp_path / "hill.npy"
+    np.save(path, h)
+    return h, path
+
+
+def test_cli_terrain_heightmap_renders_prints_its_mapping_and_exports(tmp_path, capsys):
     import imageio.v3 as iio
     import trimesh
 
-    mesh = tmp_path / "t.ply"
-    assert _terrain_cli(tmp_path, "--mesh", str(mesh), "--viewer", "3,30,-5") == 0
+    from jaxgfx.cli import main
+
+    h, path = _hill(tmp_path)
+    depth, mesh = tmp_path / "d.npy", tmp_path / "t.ply"
+    small = ["--resolution", "16", "--levels", "2", "--size", "32x24", "--smoothing", "2"]
+    fn = ["--function", f"heightmap:{path}", "--cell", "2", "--vertical-scale", "0.5"]
+    outs = ["--out", str(tmp_path / "a.png"), "--depth", str(depth)]
+    assert main(["terrain", *small, *fn, *outs, "--mesh", str(mesh)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1
+    out = json.loads(lines[0])
+    t = T.heightmap_terrain(h, cell=2, vertical_scale=0.5)
+    want = t.mapping.to_dict()
+    assert {k: out[k] for k in want} == want
+    # the default viewer stands above the map centre, in air
+    assert out["viewer"] == list(T.default_viewer(t)) and out["viewer"][1] > 0.5 * 30
     img = iio.imread(tmp_path / "a.png")
     assert img.shape[:2] == (24, 32) and img.std() > 0
+    d = np.load(depth)
+    assert d.shape == (24, 32) and np.isfinite(d).any() and np.isinf(d).any()
     tm = trimesh.load(mesh, process=False)
-    assert len(tm.faces) > 0 and np.all(np.isfinite(tm.vertices))
+    assert len(tm.faces) == out["mesh_triangles"] > 0 and np.all(np.isfinite(tm.vertices))
+    # a viewer inside the ground: an error naming --viewer, or a warning with --allow-inside
+    # (same map and sizes as above: the compiled pipeline is reused)
+    assert main(["terrain", *small, *fn, *outs, "--viewer", "0,0,0"]) == 2
+    assert "--allow-inside" in capsys.readouterr().err
+    assert main(["terrain", *small, *fn, *outs, "--viewer", "0,0,0", "--allow-inside"]) == 0
+    cap = capsys.readouterr()
+    assert "warning: --viewer (0, 0, 0) is inside solid ground" in cap.err
+    assert json.loads(cap.out)["viewer"] == [0, 0, 0]
 
 
 def test_subdivision_needs_a_key_and_views_draw_it(pipeline):

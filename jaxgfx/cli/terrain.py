@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
+import sys
 import time
 
 from jaxgfx.cli.args import (
@@ -30,6 +33,8 @@ VOXEL_BYTES = 64
 def check_args(args) -> None:
     """Every check that needs no JAX: paths, levels, and the memory estimate."""
     check_out_file("--out", args.out, (".png",))
+    if args.depth:
+        check_out_file("--depth", args.depth, (".npy",))
     if args.mesh:
         check_out_file("--mesh", args.mesh, MESH_SUFFIXES)
     n, levels = args.resolution, args.levels
@@ -43,13 +48,32 @@ def check_args(args) -> None:
                 f"--mesh-level must be in [0, {levels - 1}] with --levels {levels}, "
                 f"got {args.mesh_level}"
             )
+    if not args.function.startswith("heightmap:"):
+        for flag, given in (
+            ("--cell", args.cell is not None),
+            ("--vertical-scale", args.vertical_scale is not None),
+            ("--wrap", args.wrap),
+        ):
+            if given:
+                raise CliError(f"{flag} applies to --function heightmap:PATH only")
     w, h = args.size
     need = float(levels) * (n + 2) ** 3 * VOXEL_BYTES + float(w) * h * PIXEL_BYTES
     check_memory("--resolution", f"{n} (with --levels {levels}, --size {w}x{h})", need)
 
 
-def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = None, cell: int = 1):
-    """Terrain from a ``--function`` value: csg, xor, saw, sin or heightmap:PATH."""
+def make_terrain(
+    spec: str,
+    *,
+    seed: int = 0,
+    vertical_scale: float | None = None,
+    cell: float | None = None,
+    wrap: bool = False,
+):
+    """Terrain from a ``--function`` value: csg, xor, saw, sin or heightmap:PATH.
+
+    A height map is placed by :func:`jaxgfx.terrain.heightmap_terrain`: centred on the
+    world origin, true proportions from a DEM's header, edges clamped unless ``wrap``.
+    """
     import jax
 
     from jaxgfx import terrain as T
@@ -66,13 +90,100 @@ def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = Non
         path = spec.split(":", 1)[1]
         if not path:
             raise ValueError("--function heightmap:PATH needs a path")
-        # true proportions from the file where it says them (USGS DEM spacing, units)
-        return T.heightmap_terrain(path, cell=cell, vertical_scale=vertical_scale)
+        return T.heightmap_terrain(path, cell=cell, vertical_scale=vertical_scale, wrap=wrap)
     raise ValueError(f"--function must be one of {', '.join(FUNCTIONS)}, got {spec!r}")
 
 
+# Views that show each built-in function well: (viewer, (yaw, pitch), height range for
+# the colours).  Height maps stand above the map centre (default_viewer) instead.
+VIEWS = {
+    # rocks and arches over the ground plane, from just above it
+    "csg": ((0, 40, 0), (35.0, -10.0), (-128.0, 256.0)),
+    # the self-similar XOR pattern from high over its floor
+    "xor": ((0, 430, 0), (45.0, -30.0), (0.0, 1000.0)),
+    # near the floor of one gap between the diagonal slabs, looking along them
+    "saw": ((0, 560, 0), (135.0, -10.0), (0.0, 1000.0)),
+    # SIN is solid but for isolated pockets: the view from inside the solid shows their
+    # lattice (the pockets' walls), so this default alone stands inside the ground
+    "sin": ((0, 0, 0), (30.0, -10.0), (-30.0, 30.0)),
+}
+INSIDE_BY_DEFAULT = ("sin",)
+
+
+HEIGHTMAP_PITCH = -30.0
+"""Height maps are seen from above their centre, looking down this much..."""
+
+
+def best_yaw(terrain, viewer, reach: float) -> float:
+    """...and north (yaw 180: towards row 0, like a map) unless another compass direction
+    clearly shows more: a 60-degree wedge out to ``reach`` voxels (at most the map's
+    half-size) with a mean ground slope over 1.5x north's."""
+    import numpy as np
+
+    from jaxgfx import terrain as T
+
+    m = terrain.mapping
+    dist = np.linspace(0.05, 1.0, 32) * min(reach, max(m.shape) * m.cell / 2)
+    spread = np.linspace(-np.pi / 6, np.pi / 6, 9)
+    score = {}
+    for yaw in range(0, 360, 45):
+        a = np.deg2rad(yaw) + spread[:, None]
+        # yaw 0 looks along +z, yaw 90 along +x (jaxgfx.camera.camera_basis)
+        x = viewer[0] + np.sin(a) * dist
+        z = viewer[2] + np.cos(a) * dist
+        g = np.asarray(T.ground_height(terrain, x, z))
+        gx = np.asarray(T.ground_height(terrain, x + 1.0, z)) - g
+        gz = np.asarray(T.ground_height(terrain, x, z + 1.0)) - g
+        score[yaw] = float(np.hypot(gx, gz).mean())
+    best = max(score, key=lambda y: score[y])
+    return float(best if score[best] > 1.5 * score[180] else 180)
+
+
+def parse_snow_line(text: str) -> float | str | None:
+    """'auto', 'none' or a fraction >= 0 of the height range (argparse type)."""
+    word = text.strip().lower()
+    if word in ("auto", "none"):
+        return None if word == "none" else "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected auto, none or a number >= 0, got {text!r}")
+    return value
+
+
+def _snow_line(args) -> float | None:
+    """--snow-line, or the default: 0.8 of the relief, none for images (no altitude)."""
+    if args.snow_line != "auto":
+        return float(args.snow_line) if args.snow_line is not None else None
+    spec = args.function
+    image = spec.startswith("heightmap:") and not spec.lower().endswith(".dem")
+    return None if image else 0.8
+
+
+def _view(args, terrain):
+    """(viewer, (yaw, pitch), world height range) for ``args``, defaults by function."""
+    import numpy as np
+
+    from jaxgfx import terrain as T
+
+    if isinstance(terrain, T.HeightmapTerrain):
+        m = terrain.mapping
+        relief = float(np.max(np.asarray(terrain.heights)))
+        viewer = T.default_viewer(terrain) if args.viewer is None else args.viewer
+        reach = args.resolution * (1 << (args.levels - 1)) // 2
+        camera = (best_yaw(terrain, viewer, reach), HEIGHTMAP_PITCH)
+        heights = (m.base, m.base + max(relief, 1.0))
+    else:
+        viewer, camera, heights = VIEWS[args.function]
+        viewer = viewer if args.viewer is None else args.viewer
+    camera = camera if args.camera is None else tuple(args.camera)
+    return tuple(int(v) for v in viewer), camera, heights
+
+
 def run(args) -> int:
-    """Builds the nested boxes around ``--viewer``, renders them, optionally exports the mesh."""
+    """Builds the nested boxes around the viewer, renders them, prints one JSON line."""
     check_args(args)
 
     import jax
@@ -80,42 +191,66 @@ def run(args) -> int:
 
     from jaxgfx import terrain as T
     from jaxgfx.camera import camera_from_degrees
-    from jaxgfx.compose import background, composite
-    from jaxgfx.io import save_mesh, save_png
+    from jaxgfx.io import save_mesh, save_npy, save_png
     from jaxgfx.raster import rasterize
 
     terrain = make_terrain(
-        args.function, seed=args.seed, vertical_scale=args.vertical_scale, cell=args.cell
+        args.function,
+        seed=args.seed,
+        vertical_scale=args.vertical_scale,
+        cell=args.cell,
+        wrap=args.wrap,
     )
+    viewer, (yaw, pitch), heights = _view(args, terrain)
+    if not (args.viewer is None and args.function in INSIDE_BY_DEFAULT):
+        try:
+            T.check_viewer(terrain, viewer, name="--viewer")
+        except ValueError as err:
+            if not args.allow_inside:
+                raise CliError(f"{err} (--allow-inside renders it anyway)") from None
+            print(f"jaxgfx terrain: warning: {err}", file=sys.stderr)
     pipe = T.ClipBoxPipeline(
         terrain, size=args.resolution, levels=args.levels, smoothing=args.smoothing
     )
     w, h = args.size
-    viewer = np.asarray(args.viewer, np.int64)
     t0 = time.perf_counter()
-    state = pipe.init(viewer)
+    state = pipe.init(np.asarray(viewer, np.int64))
     build_s = time.perf_counter() - t0
     levels = T.level_views(state)
-    yaw, pitch = args.camera
-    far = 4.0 * args.resolution * (1 << args.levels)
-    cam = camera_from_degrees((0.0, 0.0, 0.0), yaw, pitch, 0.0, args.fov, w, h, 0.25, far)
+    reach = args.resolution * (1 << (args.levels - 1)) // 2  # the outer box's half-width
+    cam = camera_from_degrees((0.0, 0.0, 0.0), yaw, pitch, 0.0, args.fov, w, h, 0.25, 8 * reach)
     t0 = time.perf_counter()
-    frame = T.render_levels(cam, levels, viewer, rasterize_fn=jax.jit(rasterize))
-    img = composite([background(cam), frame]).color
-    jax.block_until_ready(img)
-    render_s = time.perf_counter() - t0
-    out = args.out
-    save_png(out, img)
-    n_tri = int(T.level_arrays(levels, viewer)[2].shape[0])
-    print(
-        f"terrain {args.function}: {args.levels} levels of {args.resolution}^3 around "
-        f"{tuple(int(v) for v in viewer)}: {n_tri} triangles; build {build_s:.2f} s "
-        f"(with compilation), render {render_s:.2f} s -> {out}"
+    frame = T.render_terrain(
+        cam,
+        levels,
+        viewer,
+        height_range=heights,
+        fog_distance=float(reach),
+        snow_line=_snow_line(args),
+        rasterize_fn=jax.jit(rasterize),
     )
+    jax.block_until_ready(frame)
+    render_s = time.perf_counter() - t0
+    save_png(args.out, frame.color)
+    report = {"function": args.function}
+    if isinstance(terrain, T.HeightmapTerrain):
+        report.update(terrain.mapping.to_dict())
+    report.update(
+        viewer=list(viewer),
+        camera=[yaw, pitch],
+        triangles=int(T.level_arrays(levels, viewer)[2].shape[0]),
+        build_s=round(build_s, 3),
+        render_s=round(render_s, 3),
+        out=str(args.out),
+    )
+    if args.depth:
+        save_npy(args.depth, np.asarray(frame.depth))
+        report["depth"] = str(args.depth)
     if args.mesh:
         mesh = T.mesh_to_trimesh(levels, viewer, level=args.mesh_level)
         save_mesh(args.mesh, mesh.vertices, mesh.faces)
-        print(f"mesh ({len(mesh.faces)} triangles, relative to the viewer) -> {args.mesh}")
+        report.update(mesh=str(args.mesh), mesh_triangles=len(mesh.faces))
+    print(json.dumps(report))
     return 0
 
 
@@ -126,15 +261,25 @@ def register(subparsers) -> None:
         help="procedural volumetric terrain with nested Clip-Boxes (thesis ch. 3)",
         description=(
             "Samples a terrain function around an integer viewer into nested Clip-Boxes, "
-            "converts them to welded, smoothed meshes and renders the view along +z."
+            "converts them to welded, smoothed meshes and renders them shaded by slope and "
+            "height, with fog to the horizon and a sky.  Prints one JSON line: for a height "
+            "map the mapping (sample (r, c) with value v stands at x = origin_x + (c + 0.5) "
+            "cell, z = origin_z + (r + 0.5) cell, y = base + (v - min) vertical_scale), "
+            "the viewer, the camera, triangles and timings."
         ),
     )
     p.add_argument("--function", default="csg", help=f"one of {', '.join(FUNCTIONS)}")
     p.add_argument(
         "--viewer",
         type=parse_ints(3, "x,y,z"),
-        default=(0, 24, 0),
-        help="x,y,z integer voxels (y up)",
+        default=None,
+        help="x,y,z integer voxels (y up); default: a view that suits --function "
+        "(height maps: above the map centre)",
+    )
+    p.add_argument(
+        "--allow-inside",
+        action="store_true",
+        help="render even when --viewer is inside solid ground (warns instead of failing)",
     )
     p.add_argument(
         "--resolution", type=positive_int, default=64, help="N voxels per box edge (multiple of 8)"
@@ -142,10 +287,13 @@ def register(subparsers) -> None:
     p.add_argument("--levels", type=positive_int, default=5, help="number of nested boxes L >= 1")
     p.add_argument("--out", default="terrain.png", help="output PNG")
     p.add_argument(
+        "--depth", default=None, help="write camera-space depth (+inf = sky) to this .npy"
+    )
+    p.add_argument(
         "--camera",
         type=parse_floats(2, "yaw,pitch"),
-        default=(0.0, -15.0),
-        help="yaw,pitch in degrees",
+        default=None,
+        help="yaw,pitch in degrees (yaw 0 looks along +z); default suits --function",
     )
     p.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
     p.add_argument(
@@ -168,5 +316,22 @@ def register(subparsers) -> None:
         default=None,
         help="heightmap voxels per height unit (default: true DEM proportions; cell for images)",
     )
-    p.add_argument("--cell", type=positive_int, default=1, help="heightmap voxels per pixel")
+    p.add_argument(
+        "--cell",
+        type=bounded_float(0.0, math.inf, open_interval=True),
+        default=None,
+        help="heightmap voxels per pixel (default 1)",
+    )
+    p.add_argument(
+        "--wrap",
+        action="store_true",
+        help="tile the heightmap (default: its edge samples extend outwards)",
+    )
+    p.add_argument(
+        "--snow-line",
+        type=parse_snow_line,
+        default="auto",
+        help="snow above this fraction of the height range, 'none' or 'auto' "
+        "(default: 0.8; none for image heightmaps, which carry no altitude)",
+    )
     p.set_defaults(func=run)

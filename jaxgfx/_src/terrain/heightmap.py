@@ -459,8 +459,8 @@ def default_viewer(terrain: HeightmapTerrain, height: float | None = None) -> tu
 
     Args:
         terrain: a :class:`HeightmapTerrain`.
-        height: voxels above the top solid voxel at the centre; default a quarter of the
-            map's relief, at least 8 and at most a quarter of the map's width.
+        height: voxels above the top solid voxel at the centre; default half the map's
+            relief, at least 8 and at most a quarter of the map's width.
     Returns:
         (x, y, z) Python ints; ``terrain`` is air there.
     """
@@ -469,7 +469,7 @@ def default_viewer(terrain: HeightmapTerrain, height: float | None = None) -> tu
     if height is None:
         relief = float(np.max(np.asarray(terrain.heights)))
         width = max(m.shape) * m.cell
-        height = min(max(8.0, relief / 4), max(8.0, width / 4))
+        height = min(max(8.0, relief / 2), max(8.0, width / 4))
     height = check_float("height", height, low=0)
     x = math.floor(m.origin[0] + m.shape[1] * m.cell / 2)
     z = math.floor(m.origin[1] + m.shape[0] * m.cell / 2)

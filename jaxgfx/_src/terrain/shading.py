@@ -1,0 +1,179 @@
+"""Terrain colours by slope and height, fog to the horizon and a sky (thesis 3.5.2, HVOX shader).
+
+The thesis's engine textures the terrain by blending colour textures with weights,
+multiplies a detail texture onto them and fades to a fog colour by distance (the
+HVOX shader, ``/work/shared/data/README.md``).  Here the weights come from the
+surface itself: grass low, earth higher, rock where the slope is steep and snow high
+and flat, with a smooth position-hashed detail term instead of a detail texture, so
+every vertex gets its colour from its position and normal alone (no texture lookups)
+and the colours are continuous across Clip-Box levels.  :func:`render_terrain` draws
+the nested levels with these colours, one-sided sun plus sky light, distance fog that
+reaches the sky's horizon colour at the outer box, and the sky behind.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgfx._src.checks import check_float
+
+__all__ = ["terrain_colors", "render_terrain", "SKY_HORIZON", "SKY_ZENITH"]
+
+_F32 = jnp.float32
+SKY_HORIZON = (0.80, 0.85, 0.90)
+"""The sky at the horizon, also the fog colour: far terrain fades into the sky."""
+SKY_ZENITH = (0.32, 0.52, 0.82)
+
+_GRASS = (0.29, 0.40, 0.17)
+_EARTH = (0.50, 0.44, 0.31)
+_ROCK = (0.47, 0.43, 0.40)
+_ROCK_BAND = (0.58, 0.40, 0.29)  # iron-red strata alternate with grey rock
+_SNOW = (0.86, 0.88, 0.92)
+
+
+def _smoothstep(lo: float, hi: float, x: jax.Array) -> jax.Array:
+    t = jnp.clip((x - lo) / (hi - lo), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _detail(p: jax.Array) -> jax.Array:
+    """A smooth pseudo-random field in [-1, 1] of world position (the detail texture's role).
+
+    Sums of sines at unrelated frequencies: continuous, so two levels' vertices at the
+    same place get the same value (no seam), and cheap on any backend.
+    """
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    n = (
+        jnp.sin(0.113 * x + 0.071 * z + 0.05 * y)
+        + jnp.sin(0.057 * z - 0.089 * x + 1.7)
+        + 0.5 * jnp.sin(0.31 * x - 0.27 * z + 0.2 * y + 4.1)
+        + 0.5 * jnp.sin(0.23 * z + 0.37 * x + 2.3)
+    )
+    return n / 3.0
+
+
+def terrain_colors(
+    vertices,
+    normals,
+    *,
+    height_range: tuple[float, float],
+    snow_line: float | None = 0.8,
+    rock_slope: tuple[float, float] = (0.3, 0.55),
+) -> jax.Array:
+    """Per-vertex terrain colour from height and slope: grass, earth, rock, snow.
+
+    With ``t`` the height's fraction of ``height_range`` and ``s = 1 - n_y`` the slope
+    (0 flat, 1 vertical): grass at the bottom turns to earth towards the top, rock
+    (with strata bands every few voxels) takes over where ``s`` passes ``rock_slope``,
+    and snow covers flat ground above ``snow_line``; a smooth detail field of the
+    position jitters the boundaries and the brightness so the bands do not look ruled.
+
+    Args:
+        vertices: (V, 3) world positions in voxels (y up).
+        normals: (V, 3) unit normals (zeros are treated as flat).
+        height_range: (low, high) world y mapped to t = 0 and 1 (e.g. a height map's
+            ``base`` and ``base + relief``).
+        snow_line: t above which flat ground is snow; None for none.
+        rock_slope: slopes (1 - n_y) where rock starts and is complete.
+    Returns:
+        (V, 3) float32 RGB in [0, 1].
+
+    Raises:
+        ValueError: ``height_range`` is not (low, high) with low < high, or bad shapes.
+    """
+    v = jnp.asarray(vertices, _F32)
+    n = jnp.asarray(normals, _F32)
+    if v.ndim != 2 or v.shape[-1] != 3 or n.shape != v.shape:
+        raise ValueError(f"vertices and normals must both be (V, 3), got {v.shape} and {n.shape}")
+    if len(height_range) != 2:
+        raise ValueError(f"height_range must be (low, high), got {height_range!r}")
+    lo = check_float("height_range[0]", height_range[0])
+    hi = check_float("height_range[1]", height_range[1])
+    if not hi > lo:
+        raise ValueError(f"height_range must have low < high, got {height_range!r}")
+    if snow_line is not None:
+        snow_line = check_float("snow_line", snow_line)
+    r0, r1 = (check_float("rock_slope", s, low=0.0, high=1.0) for s in rock_slope)
+    if not r1 > r0:
+        raise ValueError(f"rock_slope must be (start, full) with start < full, got {rock_slope}")
+
+    d = _detail(v)
+    t = (v[:, 1] - lo) / (hi - lo) + 0.04 * d
+    ny = jnp.where(jnp.sum(n * n, -1) > 0, n[:, 1], 1.0)
+    slope = 1.0 - jnp.clip(ny, 0.0, 1.0) + 0.05 * d
+    col = lambda c: jnp.asarray(c, _F32)  # noqa: E731
+    soil = col(_GRASS) + (col(_EARTH) - col(_GRASS)) * _smoothstep(0.2, 0.7, t)[:, None]
+    band = 0.5 + 0.5 * jnp.sin(v[:, 1] * 0.45 + 2.0 * d)
+    rock = col(_ROCK) + (col(_ROCK_BAND) - col(_ROCK)) * (0.6 * band)[:, None]
+    c = soil + (rock - soil) * _smoothstep(r0, r1, slope)[:, None]
+    if snow_line is not None:
+        flat = 1.0 - _smoothstep(0.3, 0.55, slope)
+        snow = _smoothstep(snow_line, snow_line + 0.06, t) * flat
+        c = c + (col(_SNOW) - c) * snow[:, None]
+    c = c * (1.0 + 0.12 * d)[:, None]
+    return jnp.clip(c, 0.0, 1.0)
+
+
+def render_terrain(
+    cam,
+    levels: Sequence[dict],
+    anchor,
+    *,
+    height_range: tuple[float, float],
+    fog_distance: float,
+    light_dir=(0.5, 0.75, 0.35),
+    snow_line: float | None = 0.8,
+    rasterize_fn=None,
+):
+    """Draws the nested levels coloured by :func:`terrain_colors`, fogged, over a sky.
+
+    Args:
+        cam: :class:`jaxgfx.camera.Camera`, position relative to ``anchor``.
+        levels: ``level_views(state)`` (or a :class:`GeometryWorker` buffer's levels).
+        anchor: (3,) integer world position the camera and vertices are relative to.
+        height_range: (low, high) WORLD y for the colour bands.
+        fog_distance: camera depth (voxels) where the fog reaches 95 %; the outer box's
+            half-width hides the box edge in the sky's horizon colour.
+        light_dir: direction towards the sun.
+        snow_line: as in :func:`terrain_colors`.
+        rasterize_fn: a jitted ``jaxgfx.raster.rasterize`` (default: jit it here).
+    Returns:
+        :class:`jaxgfx.compose.Frame` (colour with the sky, depth +inf on the sky).
+    """
+    from jaxgfx._src.terrain.display import level_arrays
+    from jaxgfx.compose import Frame, background
+    from jaxgfx.raster import rasterize
+
+    fog_distance = check_float("fog_distance", fog_distance)
+    if fog_distance <= 0:
+        raise ValueError(f"fog_distance must be > 0, got {fog_distance}")
+    anchor = np.asarray(anchor, np.int64)
+    v, n, f, _ = level_arrays(levels, anchor)
+    if f.shape[0] == 0:
+        f = np.zeros((1, 3), np.int32)  # one degenerate triangle draws nothing
+        v, n = np.zeros((1, 3), np.float32), np.zeros((1, 3), np.float32)
+    # world positions for the colours (float32: exact enough for colour far out too)
+    world = v + anchor.astype(np.float32)
+    colors = terrain_colors(world, n, height_range=height_range, snow_line=snow_line)
+    fn = rasterize_fn if rasterize_fn is not None else jax.jit(rasterize)
+    out = fn(cam, jnp.asarray(v), jnp.asarray(f), jnp.concatenate([colors, jnp.asarray(n)], -1))
+    albedo, nrm = out.color[..., :3], out.color[..., 3:]
+    nn = jnp.sum(nrm * nrm, -1, keepdims=True)
+    nrm = nrm / jnp.sqrt(jnp.where(nn > 0, nn, 1.0))
+    light = jnp.asarray(light_dir, _F32)
+    light = light / jnp.linalg.norm(light)
+    sun = jnp.maximum(jnp.sum(nrm * light, -1, keepdims=True), 0.0)
+    sky = 0.5 + 0.5 * nrm[..., 1:2]  # hemisphere light: facing up sees more sky
+    lit = albedo * (0.8 * sun + 0.3 * sky)
+    horizon = jnp.asarray(SKY_HORIZON, _F32)
+    hit = jnp.isfinite(out.depth)
+    z = jnp.where(hit, out.depth, 0.0) / fog_distance
+    k = (1.0 - jnp.exp(-3.0 * z * z * z))[..., None]  # clear near, 95 % at fog_distance
+    color = lit * (1.0 - k) + horizon * k
+    # below the horizon, where no box reaches, the "ground" is the fog colour too
+    sky_frame = background(cam, horizon=SKY_HORIZON, zenith=SKY_ZENITH, ground=SKY_HORIZON)
+    return Frame(jnp.where(hit[..., None], color, sky_frame.color), out.depth)
