@@ -196,6 +196,20 @@ def _snap(c: jax.Array, n: int) -> jax.Array:
     return jnp.where(on_b, c - jnp.bitwise_and(c, 1), c)
 
 
+def _cell_offset(scale: jax.Array) -> jax.Array:
+    """Offset of a level's lattice so its voxel cubes are centred on their samples' cells.
+
+    Level 0's voxel at the integer point p is the unit cube [p, p + 1], the cell of
+    the sample.  A level-l voxel samples the same point p but stands for 2^l cells;
+    drawing it as [p, p + 2^l] would put the level's surface on average
+    (2^l - 1) / 2 voxels too high (and too far along +x, +z) -- a step at every seam
+    that grows with the level (the "slabs" and box outlines of issue 17).  Centring
+    the cube on the sample's cell, [p + 1/2 - 2^l / 2, p + 1/2 + 2^l / 2], makes every
+    level an unbiased estimate of the same surface.
+    """
+    return 0.5 * (1.0 - scale)
+
+
 def voxels_to_mesh(
     box: ClipBox, *, max_quads: int, max_vertices: int | None = None, seam: bool = True
 ) -> ClipBoxMesh:
@@ -307,8 +321,15 @@ def voxels_to_mesh(
         .reshape(vmax, 6)
     )
     scale = jnp.left_shift(1, box.level).astype(jnp.float32)
+    offset = _cell_offset(scale)
+    if seam:
+        # The seam ring holds the outer level's samples, so it is drawn with the outer
+        # level's cubes; the vertices where it meets this level's own voxels (lattice
+        # 2 or N - 2) take the outer offset too, so the switch is one voxel wide.
+        ring = jnp.any((lattice <= 2) | (lattice >= n - 2), axis=-1, keepdims=True)
+        offset = jnp.where(ring, _cell_offset(2.0 * scale), offset)
     return ClipBoxMesh(
-        vertices=lattice.astype(jnp.float32) * scale,
+        vertices=lattice.astype(jnp.float32) * scale + offset,
         normals=jnp.zeros((vmax, 3), jnp.float32),
         lattice=lattice,
         neighbors=nbrs,
@@ -333,26 +354,49 @@ def voxels_to_mesh(
 def weld_seam(inner: ClipBoxMesh, outer: ClipBoxMesh) -> ClipBoxMesh:
     """Welds an inner mesh onto the next outer level (3.4.5, Fig. 3.7).
 
-    Every inner vertex on the inner box boundary sits on the outer lattice (see
-    :func:`voxels_to_mesh` with ``seam=True``); it takes the outer mesh's (smoothed)
-    position and normal there, so both meshes share the seam exactly.
+    The seam ring (one outer voxel thick, see :func:`seam_occupancy`) replicates the
+    outer level's voxels, so its surface is the outer surface: every inner vertex in
+    the ring (lattice 0, 1, N - 1 or N on some axis) takes the outer mesh's smoothed
+    position and normal, at an outer lattice vertex or the mean of the two or four
+    outer vertices around an edge or face midpoint (odd inner coordinates).  The
+    boundary vertices (all even, :func:`voxels_to_mesh` with ``seam=True`` snaps
+    them) are therefore exact copies and both meshes share the seam.  Taking the
+    whole ring, not only the boundary, matters: smoothed at the inner level's
+    (half) strength, the ring's outer-sized steps would show as blocks along every
+    box border.
 
     Args:
         inner: level-l mesh built with ``seam=True``.
         outer: level-(l+1) mesh whose box contains the inner box.
     """
-    n_in, n_out = inner.size, outer.size
-    on_b = jnp.any((inner.lattice == 0) | (inner.lattice == n_in), axis=-1)
-    on_b &= jnp.arange(inner.lattice.shape[0]) < inner.num_vertices
+    n_in = inner.size
+    c = inner.lattice
+    ring = jnp.any((c <= 1) | (c >= n_in - 1), axis=-1)
+    ring &= jnp.arange(c.shape[0]) < inner.num_vertices
     off = jnp.right_shift(inner.origin - outer.origin, outer.level)  # outer voxels
-    q = off + jnp.right_shift(inner.lattice, 1)
-    inside = jnp.all((q >= 0) & (q <= n_out), axis=-1)
-    vid = outer.vertex_id(q)
-    ok = on_b & inside & (vid >= 0) & (vid < outer.vertices.shape[0])
-    vid = jnp.where(ok, vid, 0)
+    lo = off + jnp.right_shift(c, 1)
+    odd = (c & 1) == 1  # between two outer lattice vertices on this axis
+    # Weight of corner k (bit a: the upper outer vertex on axis a): the corners that
+    # differ only on odd axes share the vertex equally; an all-even vertex is an
+    # exact copy of one outer vertex (weight 1), so the seam is bit-exact.
+    weight = 1.0 / jnp.left_shift(1, jnp.sum(odd, axis=-1)).astype(jnp.float32)
+    pos = jnp.zeros(inner.vertices.shape, jnp.float32)
+    nrm = jnp.zeros(inner.normals.shape, jnp.float32)
+    ok = ring
+    for k in range(8):
+        pick = jnp.asarray([(k >> a) & 1 for a in range(3)], bool)
+        used = jnp.all(odd | ~pick, axis=-1)  # an upper corner only on odd axes
+        vid = outer.vertex_id(lo + pick)
+        ok &= (vid >= 0) | ~used
+        w = jnp.where(used & (vid >= 0), weight, 0.0)[:, None]
+        vid = jnp.maximum(vid, 0)
+        pos = pos + w * outer.vertices[vid]
+        nrm = nrm + w * outer.normals[vid]
     shift = (outer.origin - inner.origin).astype(jnp.float32)
-    pos = jnp.where(ok[:, None], outer.vertices[vid] + shift, inner.vertices)
-    nrm = jnp.where(ok[:, None], outer.normals[vid], inner.normals)
+    n2 = jnp.sum(nrm * nrm, axis=-1, keepdims=True)
+    nrm = jnp.where(n2 > 1e-20, nrm * jax.lax.rsqrt(jnp.maximum(n2, 1e-20)), 0.0)
+    pos = jnp.where(ok[:, None], pos + shift, inner.vertices)
+    nrm = jnp.where(ok[:, None], nrm, inner.normals)
     return dataclasses.replace(inner, vertices=pos, normals=nrm)
 
 
