@@ -333,7 +333,11 @@ def demo_forest(*, key: jax.Array, origin=(-26.9, 0.0, 15.0), voxel_size: float 
 
 
 def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
-    """Per-plane RLE ray casting with the shared camera, shaded by screen-space normals."""
+    """Per-plane RLE ray casting with the shared camera, lit by :func:`jaxgfx.post.shade_voxels`.
+
+    Screen-space normals and ambient occlusion (4.5.6) from the voxel-space depth,
+    with sample radii in voxels; black where nothing was hit.
+    """
     local = dataclasses.replace(
         cam,
         position=(cam.position - vp.origin) / vp.voxel_size,
@@ -343,10 +347,8 @@ def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
     out = raycast.render_rle(
         vp.rle, local, settings=raycast.RenderSettings(num_planes=vp.num_planes)
     )
-    normals = post.screen_space_normals(local, out.depth, key=key, samples=8)
-    color = post.shade(out.color, normals)
-    hit = jnp.isfinite(out.depth)
-    return Frame(jnp.where(hit[..., None], color, 0.0), out.depth * vp.voxel_size)
+    color = post.shade_voxels(local, out.color, out.depth, key=key, samples=8)
+    return Frame(color, out.depth * vp.voxel_size)
 
 
 def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
