@@ -62,57 +62,19 @@ def main(argv=None) -> int:
     v, n = jnp.asarray(fox.vertices), jnp.asarray(fox.normals)
     j, w = jnp.asarray(fox.joints), jnp.asarray(fox.weights)
 
-    # spline through the rest-pose origins of the tail joints
-    rest_globals = skin.joint_globals(fox, fox.rest_trs)
-    bind_pts = rest_globals[tail, :3, 3].astype(np.float32)
-    rig = skin.make_rig(bind_pts[None], stiffness=3.0)
-    tail_w = np.where(np.isin(fox.joints, tail), fox.weights, 0.0).sum(1)
-    on_tail = tail_w > 0
-    binding = skin.bind_mesh(
-        rig,
-        fox.vertices[on_tail],
-        np.zeros((on_tail.sum(), 1), np.int32),
-        np.ones((on_tail.sum(), 1)),
-        normals=fox.normals[on_tail],
-    )
-    other_w = np.where(np.isin(fox.joints, tail), 0.0, fox.weights)
-    rest_rot0 = rest_globals[tail[0], :3, :3]
-
-    @jax.jit
-    def spline_tail(mats, pts, rot0):
-        pose = skin.SplinePose(points=pts[None], stiffness=rig.bind.stiffness, twist=jnp.zeros(1))
-        # the start normal follows the b_Tail01 joint (rotation relative to its rest rotation)
-        ref = rot0 @ rig.reference_normal[0]
-        d = pts[1] - pts[0]
-        d = d / jnp.linalg.norm(d)
-        n0 = ref - jnp.dot(ref, d) * d
-        n0 = (n0 / jnp.linalg.norm(n0))[None]
-        sp, sn = jax.vmap(
-            lambda s, ww, x, lv, ln: skin.skin_vertex_exact(pose, n0, s, ww, x, lv, ln)
-        )(binding.spline, binding.weight, binding.x, binding.local, binding.local_normal)
-        # bones without the tail, with un-normalized weights: sum of the partial blends
-        m = jnp.einsum("vi,virc->vrc", jnp.asarray(other_w), mats[j])
-        rest_part = jnp.einsum("vrc,vc->vr", m[..., :3], v) + m[..., 3]
-        tw = jnp.asarray(tail_w)[:, None]
-        out = rest_part.at[jnp.asarray(np.nonzero(on_tail)[0])].add(tw[on_tail] * sp)
-        nrm = (
-            jnp.einsum("vrc,vc->vr", m[..., :3], n)
-            .at[jnp.asarray(np.nonzero(on_tail)[0])]
-            .add(tw[on_tail] * sn)
-        )
-        return out, nrm / jnp.linalg.norm(nrm, axis=1, keepdims=True)
+    # the tail as one spline through the rest-pose origins of its joints (jaxgfx.skin, 5.9.3)
+    chain = skin.gltf_spline_chain(fox, TAIL, stiffness=3.0)
+    on_tail = np.zeros(len(fox.vertices), bool)
+    on_tail[np.asarray(chain.chain_vertex)] = True
+    spline_tail = jax.jit(skin.skin_gltf_chain)
 
     size = float(np.linalg.norm(fox.vertices.max(0) - fox.vertices.min(0)))
     orig, hybrid, dev_mean, dev_max = [], [], [], []
     t0 = time.perf_counter()
     for t in times:
-        local = skin.sample_animation(fox, t)
-        globs = skin.joint_globals(fox, local)
-        mats = jnp.asarray((globs @ fox.inverse_bind)[:, :3, :], jnp.float32)
-        po, no = lbs(mats, v, n, j, w)
-        pts = jnp.asarray(globs[tail, :3, 3], jnp.float32)
-        rot0 = jnp.asarray(globs[tail[0], :3, :3] @ rest_rot0.T, jnp.float32)
-        ph, nh = spline_tail(mats, pts, rot0)
+        pose = skin.gltf_pose(fox, chain, t)
+        po, no = lbs(pose.matrices, v, n, j, w)
+        ph, nh = spline_tail(chain, pose)
         d = np.linalg.norm(np.asarray(ph - po), axis=1)[on_tail] / size * 100
         dev_mean.append(d.mean())
         dev_max.append(d.max())

@@ -52,7 +52,8 @@ from jaxgfx.raycast import (
     volume_to_voxels,
     voxelize_mesh,
 )
-from jaxgfx.scene import MeshPass, build_demo, mesh_pass, render_frame, render_mesh_pass
+from jaxgfx.scene import MeshPass, mesh_pass, render_frame, render_mesh_pass
+from jaxgfx.showcase import build_demo
 from jaxgfx.skin import (
     SplinePose,
     SplineRig,

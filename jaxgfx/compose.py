@@ -19,6 +19,7 @@ __all__ = [
     "Frame",
     "composite",
     "composite_pair",
+    "coverage",
     "background",
     "lambert",
     "fog",
@@ -63,6 +64,26 @@ def composite(frames) -> Frame:
     for f in frames[1:]:
         out = composite_pair(out, f)
     return out
+
+
+def coverage(frames) -> jax.Array:
+    """Share of the frame each pass shows after compositing (ties go to the earlier pass).
+
+    Args:
+        frames: sequence of :class:`Frame` with equal shapes, in compositing order.
+
+    Returns:
+        (P,) float32: for each pass, the fraction of pixels where it has the nearest finite
+        depth; the rest of the frame (1 - sum) shows no pass (the background's +inf).
+    """
+    frames = list(frames)
+    if not frames:
+        raise ValueError("coverage: frames must be a non-empty sequence")
+    depth = jnp.stack([f.depth for f in frames])
+    nearest = jnp.argmin(depth, axis=0)  # the first minimum: ties go to the earlier pass
+    hit = jnp.isfinite(jnp.min(depth, axis=0))
+    onehot = (nearest[None] == jnp.arange(len(frames))[:, None, None]) & hit[None]
+    return jnp.mean(onehot.astype(jnp.float32), axis=(1, 2))
 
 
 def background(

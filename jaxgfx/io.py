@@ -13,6 +13,7 @@ import numpy as np
 __all__ = [
     "atomic_write",
     "load_mesh",
+    "up_rotation",
     "mesh_arrays",
     "save_png",
     "save_npy",
@@ -21,6 +22,8 @@ __all__ = [
 ]
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+UP_AXES = ("x", "y", "z")
+"""The axes a mesh file may call "up"; jaxgfx scenes are y-up."""
 
 
 @contextlib.contextmanager
@@ -50,17 +53,43 @@ def atomic_write(path):
             os.remove(tmp)
 
 
-def load_mesh(path):
+def up_rotation(up: str = "y") -> np.ndarray:
+    """The rotation (3, 3) that turns a file's ``up`` axis (``'x'``, ``'y'``, ``'z'``) into +y.
+
+    A proper rotation (determinant +1, so faces keep their winding): z-up ``(x, y, z)`` becomes
+    ``(x, z, -y)``, x-up becomes ``(-y, x, z)``, y-up is the identity.  Apply it to vertices as
+    ``v @ R.T`` (and to normals the same way).
+
+    Raises:
+        ValueError: ``up`` is not one of :data:`UP_AXES`.
+    """
+    if up not in UP_AXES:
+        raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")
+    rows = {
+        "x": [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+        "y": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        "z": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]],
+    }
+    return np.asarray(rows[up])
+
+
+def load_mesh(path, up: str = "y"):
     """Loads a triangle mesh (PLY/OBJ/GLB/GLTF/STL/OFF) with trimesh.
 
     Scenes (e.g. GLB) are flattened into one mesh with their node transforms.
 
+    Args:
+        path: the mesh file.
+        up: the file's up axis; the mesh is rotated by :func:`up_rotation` so that it points
+            along +y (scanned meshes such as Stanford Lucy are z-up).
+
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unknown suffix, the file cannot be parsed, or it has no faces.
+        ValueError: unknown suffix or ``up``, the file cannot be parsed, or it has no faces.
     """
     import trimesh
 
+    rot = up_rotation(up)  # checked before reading a possibly large file
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
@@ -80,6 +109,10 @@ def load_mesh(path):
         )
     if not np.all(np.isfinite(loaded.vertices)):
         raise ValueError(f"mesh file {path} has non-finite vertex coordinates")
+    if up != "y":
+        transform = np.eye(4)
+        transform[:3, :3] = rot
+        loaded.apply_transform(transform)
     return loaded
 
 

@@ -10,14 +10,12 @@ for any triangle mesh and the default demo scene.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx import post, raycast, skin, terrain
+from jaxgfx import post, raycast, skin
 from jaxgfx._src.checks import static_field
 from jaxgfx.camera import Camera
 from jaxgfx.compose import Frame, background, composite, fog, lambert
@@ -29,18 +27,12 @@ __all__ = [
     "merge_mesh_passes",
     "render_mesh_pass",
     "render_frame",
-    "demo_meshes",
     "grid_faces",
     "CharacterPass",
     "demo_character_pass",
     "character_pose",
     "render_character",
-    "Demo",
-    "build_demo",
-    "demo_terrain",
-    "terrain_mesh_pass",
     "VoxelPass",
-    "demo_forest",
     "render_voxel_pass",
 ]
 
@@ -138,49 +130,6 @@ def grid_faces(n: int) -> np.ndarray:
     return np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]).astype(np.int32)
 
 
-def demo_meshes(*, key: jax.Array, ground_cells: int = 96) -> list[MeshPass]:
-    """The default demo scene: rolling ground, a sphere, a torus, a capsule, boxes.
-
-    Needs no data files.  Hills are a sum of random Gaussian bumps drawn from ``key``.
-    """
-    import trimesh
-
-    n = ground_cells + 1
-    k1, k2, k3 = jax.random.split(key, 3)
-    centers = np.asarray(jax.random.uniform(k1, (12, 2), minval=-30.0, maxval=30.0))
-    heights = np.asarray(jax.random.uniform(k2, (12,), minval=-1.0, maxval=3.5))
-    widths = np.asarray(jax.random.uniform(k3, (12,), minval=4.0, maxval=10.0))
-    xs = np.linspace(-40.0, 40.0, n)
-    gx, gz = np.meshgrid(xs, xs)
-    gy = np.zeros_like(gx)
-    for (cx, cz), h, w in zip(centers, heights, widths):
-        gy += h * np.exp(-((gx - cx) ** 2 + (gz - cz) ** 2) / (2 * w * w))
-    # Keep the middle flat where the objects stand.
-    gy *= np.clip((np.hypot(gx, gz) - 6.0) / 6.0, 0.0, 1.0)
-    gv = np.stack([gx, gy, gz], -1).reshape(-1, 3)
-    gf = grid_faces(n)
-    shade = np.clip(0.35 + 0.12 * gy, 0.2, 0.8)[..., None].reshape(-1, 1)
-    gc = np.concatenate([0.45 * shade + 0.15, 0.55 + 0.0 * shade, 0.25 * shade + 0.1], -1)
-    out = [mesh_pass(gv.astype(np.float32), gf.astype(np.int32), gc.astype(np.float32))]
-
-    def add(m, color, offset):
-        v = np.asarray(m.vertices, np.float32) + np.asarray(offset, np.float32)
-        col = np.broadcast_to(np.asarray(color, np.float32), v.shape)
-        out.append(mesh_pass(v, np.asarray(m.faces, np.int32), col))
-
-    add(trimesh.creation.icosphere(subdivisions=4, radius=1.5), (0.85, 0.3, 0.25), (-3.0, 1.5, 2.0))
-    add(trimesh.creation.torus(2.0, 0.6), (0.9, 0.75, 0.3), (3.0, 0.6, 3.0))
-    add(trimesh.creation.capsule(height=3.0, radius=0.7), (0.3, 0.5, 0.9), (0.0, 2.2, 6.0))
-    for k in range(5):
-        s = 0.8 + 0.3 * k
-        add(
-            trimesh.creation.box((s, s, s)),
-            (0.6, 0.6, 0.65),
-            (-8.0 + 4.0 * k, s / 2, 11.0 + (k % 2) * 2.0),
-        )
-    return out
-
-
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class CharacterPass:
@@ -241,62 +190,6 @@ def render_character(
     return render_mesh_pass(cam, MeshPass(world, ch.faces, colors, nrm), light_dir)
 
 
-class Demo(NamedTuple):
-    """The demo frame as timed passes sharing one camera (thesis 2.3, Fig. 2.2)."""
-
-    camera: Camera
-    passes: list  # [(name, fn, args, first-call seconds or None)]; Frames are composited
-    composite: Callable  # jitted: list of Frames -> Frame
-    description: str
-
-
-def demo_terrain(*, key: jax.Array, size: int = 32, levels: int = 3):
-    """Volumetric demo terrain: rolling hills (a heightmap) united with CSG rocks and arches.
-
-    Returns:
-        A :class:`jaxgfx.terrain.ClipBoxPipeline` of ``levels`` nested Clip-Boxes of
-        ``size``^3 voxels (thesis ch. 3); the hills are flat around the origin.
-    """
-    k_hills, k_rocks = jax.random.split(key)
-    n = 256
-    xs = np.arange(n) - n / 2
-    gx, gz = np.meshgrid(xs, xs)
-    p = np.asarray(jax.random.uniform(k_hills, (40, 4)))
-    h = np.zeros_like(gx)
-    for cx, cz, a, w in p:
-        cx, cz, a, w = (cx - 0.5) * n, (cz - 0.5) * n, -6 + 20 * a, 8 + 16 * w
-        h += a * np.exp(-((gx - cx) ** 2 + (gz - cz) ** 2) / (2 * w * w))
-    h *= np.clip((np.hypot(gx, gz) - 48) / 24, 0, 1)
-    # The heightmap tiles with period n; centre the flat part on the origin.
-    hills = terrain.heightmap_terrain(np.fft.ifftshift(h), base=int(np.floor(h.min())))
-    rocks = terrain.random_csg_terrain(
-        key=k_rocks,
-        count=160,
-        period=256,
-        y_range=(-10, 36),
-        radius=(3, 9),
-        union_fraction=0.6,
-        ground=-(10**6),
-    )
-    return terrain.ClipBoxPipeline(
-        terrain.Union(hills, rocks), size=size, levels=levels, smoothing=4
-    )
-
-
-def terrain_mesh_pass(levels, voxel_size: float, color=(0.62, 0.56, 0.46)) -> MeshPass:
-    """All Clip-Box levels (viewer-relative, anchored at the origin) as one :class:`MeshPass`."""
-    v, n, f, _ = terrain.level_arrays(levels, (0, 0, 0))
-    if f.shape[0] == 0:
-        f = np.zeros((1, 3), np.int32)  # one degenerate triangle draws nothing
-    verts = jnp.asarray(v, jnp.float32) * voxel_size
-    return MeshPass(
-        verts,
-        jnp.asarray(f, jnp.int32),
-        jnp.broadcast_to(jnp.asarray(color, jnp.float32), verts.shape),
-        jnp.asarray(n, jnp.float32),
-    )
-
-
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class VoxelPass:
@@ -319,19 +212,6 @@ class VoxelPass:
     num_planes: int | None = static_field(None)
 
 
-def demo_forest(*, key: jax.Array, origin=(-26.9, 0.0, 15.0), voxel_size: float = 0.14):
-    """A row of procedural voxel trees (4.3.3) as instances of one RLE object (4.4.6)."""
-    tree = raycast.procedural_tree(64, key=key, depth=4)
-    rle = raycast.encode_rle(tree, levels=2)
-    tiles = [(0, 0), (1, 1), (2, 0), (3, 1), (4, 0), (5, 1)]
-    forest = raycast.place_instances(rle, tiles, (6, 2))
-    return VoxelPass(
-        raycast.as_jax(forest),
-        jnp.asarray(origin, jnp.float32),
-        jnp.float32(voxel_size),
-    )
-
-
 def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
     """Per-plane RLE ray casting with the shared camera, lit by :func:`jaxgfx.post.shade_voxels`.
 
@@ -349,62 +229,3 @@ def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
     )
     color = post.shade_voxels(local, out.color, out.depth, key=key, samples=8)
     return Frame(color, out.depth * vp.voxel_size)
-
-
-def build_demo(width: int, height: int, *, key: jax.Array) -> Demo:
-    """Builds the default scene (no data files needed) and its jitted passes.
-
-    Background sky; the terrain pass (3 nested Clip-Boxes of volumetric terrain,
-    ch. 3); a polygon pass with primitives; a character pass (spline skinning
-    with a muscle style, ch. 5).  Every pass uses the same camera and the
-    frames are merged by depth.  Terrain generation is timed as a pass of its own.
-    """
-    import time
-
-    from jaxgfx.camera import look_at
-
-    k_terrain, k_objects, k_trees, k_ssn = jax.random.split(key, 4)
-    cam = look_at([0.0, 6.0, -14.0], [1.0, 1.5, 6.0], 55.0, width, height, 0.1, 500.0)
-    meshes = merge_mesh_passes(demo_meshes(key=k_objects)[1:])  # primitives, no ground
-    ch = demo_character_pass(offset=(3.2, 0.0, -1.5), scale=1.6)
-    pipe = demo_terrain(key=k_terrain)
-    forest = demo_forest(key=k_trees)
-    voxel = 0.5  # world units per level-0 voxel
-
-    def generate_terrain(viewer):
-        # Host-driven Clip-Box build (sampling, faces, smoothing, normals, welding).
-        state = pipe.init(viewer)
-        jax.block_until_ready(state)
-        return terrain_mesh_pass(pipe.views(state), voxel)
-
-    viewer = tuple(int(round(c / voxel)) for c in np.asarray(cam.position))
-    t0 = time.perf_counter()
-    terrain_pass = generate_terrain(viewer)
-    first_build = time.perf_counter() - t0  # includes tracing and compiling every step
-    render = jax.jit(render_mesh_pass)
-    passes = [
-        ("background pass", jax.jit(background), (cam,), None),
-        ("terrain generation (3 Clip-Boxes of 32^3)", generate_terrain, (viewer,), first_build),
-        ("terrain pass (rasterizer)", render, (cam, terrain_pass), None),
-        ("polygon pass (rasterizer)", render, (cam, meshes), None),
-        (
-            "static objects pass (RLE voxel forest, per-plane ray caster)",
-            jax.jit(lambda c, vp, k: render_voxel_pass(c, vp, key=k)),
-            (cam, forest, k_ssn),
-            None,
-        ),
-        (
-            "character pass (spline skinning + style + rasterizer)",
-            jax.jit(lambda c, ch, ph: render_character(c, ch, character_pose(ch, ph))),
-            (cam, ch, jnp.float32(0.3)),
-            None,
-        ),
-    ]
-    desc = (
-        f"terrain: {int(terrain_pass.faces.shape[0])} triangles; forest: 6 instances of one "
-        f"procedural voxel tree; primitives: "
-        f"{int(meshes.faces.shape[0])} triangles; character: "
-        f"{int(ch.binding.rest.shape[0])} vertices on a spline rig with the muscle style"
-    )
-    comp = jax.jit(lambda fs: fog(composite(fs), density=0.012))
-    return Demo(cam, passes, comp, desc)

@@ -23,7 +23,18 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
 * Styles fitted by gradient descent instead of painted (5.6 made differentiable) -- ``fit``:
   :func:`fit_style`.
 * Skinned glTF characters (JOINTS_0 / WEIGHTS_0, animations) -- ``gltf``:
-  :func:`load_gltf_skin`, :func:`joint_matrices`.
+  :func:`load_gltf_skin`, :func:`sample_animation`, :func:`joint_matrices`; the file's unskinned
+  meshes (props) at their node transforms: :func:`load_gltf_meshes`.
+* 5.9.3 A bone chain of a glTF character replaced by one spline (fewer control joints) --
+  ``chain``: :func:`gltf_spline_chain` (host, once: the spline through three joints' bind origins,
+  the binding and weight split), :func:`gltf_pose` (host, per frame: joint matrices, the chain's
+  posed points and start rotation at ``time``), :func:`skin_gltf_chain` (jittable: other bones by
+  LBS, the chain by spline skinning with an optional :class:`Style`, blended by weight)::
+
+      fox = skin.load_gltf_skin("fox.glb")
+      tail = skin.gltf_spline_chain(fox, ("b_Tail01", "b_Tail02", "b_Tail03"), stiffness=3.0)
+      pos, nrm = jax.jit(skin.skin_gltf_chain)(tail, skin.gltf_pose(fox, tail, 0.7),
+                                               skin.muscle_style())
 * The demo arm of the scene, the CLI and the tests -- ``demo``: :func:`demo_arm`,
   :func:`demo_arm_pose`, :func:`demo_character`, :func:`limb_mesh`.
 """
@@ -42,6 +53,12 @@ from jaxgfx._src.skin.binding import SkinBinding as SkinBinding
 from jaxgfx._src.skin.binding import bind_mesh as bind_mesh
 from jaxgfx._src.skin.binding import bind_vertex as bind_vertex
 from jaxgfx._src.skin.binding import brute_force_binding as brute_force_binding
+from jaxgfx._src.skin.chain import TAIL_JOINTS as TAIL_JOINTS
+from jaxgfx._src.skin.chain import GltfChainPose as GltfChainPose
+from jaxgfx._src.skin.chain import GltfSplineChain as GltfSplineChain
+from jaxgfx._src.skin.chain import gltf_pose as gltf_pose
+from jaxgfx._src.skin.chain import gltf_spline_chain as gltf_spline_chain
+from jaxgfx._src.skin.chain import skin_gltf_chain as skin_gltf_chain
 from jaxgfx._src.skin.demo import DemoArm as DemoArm
 from jaxgfx._src.skin.demo import demo_arm as demo_arm
 from jaxgfx._src.skin.demo import demo_arm_pose as demo_arm_pose
@@ -53,9 +70,11 @@ from jaxgfx._src.skin.fit import params_to_style as params_to_style
 from jaxgfx._src.skin.fit import smoothness_penalty as smoothness_penalty
 from jaxgfx._src.skin.fit import style_loss as style_loss
 from jaxgfx._src.skin.fit import style_to_params as style_to_params
+from jaxgfx._src.skin.gltf import GltfMesh as GltfMesh
 from jaxgfx._src.skin.gltf import GltfSkin as GltfSkin
 from jaxgfx._src.skin.gltf import joint_globals as joint_globals
 from jaxgfx._src.skin.gltf import joint_matrices as joint_matrices
+from jaxgfx._src.skin.gltf import load_gltf_meshes as load_gltf_meshes
 from jaxgfx._src.skin.gltf import load_gltf_skin as load_gltf_skin
 from jaxgfx._src.skin.gltf import sample_animation as sample_animation
 from jaxgfx._src.skin.gltf import trs_matrix as trs_matrix
@@ -149,10 +168,18 @@ __all__ = [
     "fit_style",
     "GltfSkin",
     "load_gltf_skin",
+    "GltfMesh",
+    "load_gltf_meshes",
     "trs_matrix",
     "sample_animation",
     "joint_globals",
     "joint_matrices",
+    "TAIL_JOINTS",
+    "GltfSplineChain",
+    "GltfChainPose",
+    "gltf_spline_chain",
+    "gltf_pose",
+    "skin_gltf_chain",
     "limb_mesh",
     "DemoArm",
     "demo_arm",

@@ -16,10 +16,15 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
     :class:`CSGTerrain`, :func:`csg_terrain`, :func:`random_csg_terrain`,
     ``PRIMITIVE_SPHERE`` / ``PRIMITIVE_BOX`` / ``PRIMITIVE_CYLINDER``.
 3.5.2 height maps (Fig. 3.16) and 3.3.1 existing volumes, ``heightmap.py``:
-    :func:`load_heightmap`, :func:`heightmap_terrain` (:class:`HeightmapTerrain`),
-    :func:`volume_terrain` (:class:`VolumeTerrain`).
+    :func:`read_heightmap` (:class:`HeightmapData`: heights, spacing, unit),
+    :func:`load_heightmap`, :func:`heightmap_terrain` (:class:`HeightmapTerrain` with its
+    :class:`HeightmapMapping`), :func:`ground_height`, :func:`default_viewer`,
+    :func:`volume_terrain` (:class:`VolumeTerrain`).  A sample (r, c) with value v stands
+    at x = origin_x + (c + 0.5) cell, z = origin_z + (r + 0.5) cell,
+    y = base + (v - min_value) vertical_scale; heights are bilinear between samples and
+    voxel (x, y, z) is solid iff y + 0.5 < ground_height(x + 0.5, z + 0.5).
 3.4.3 Validating and sampling any terrain, ``sampling.py``:
-    :func:`as_terrain`, :func:`check_terrain`, :func:`sample_terrain`.
+    :func:`as_terrain`, :func:`check_terrain`, :func:`check_viewer`, :func:`sample_terrain`.
 3.4.1-3.4.2 Clip-Box and 3.4.3 filling it, ``clipbox.py``:
     :class:`ClipBox`, :func:`clipbox_origin`, :func:`sample_clipbox`.
 3.4.5 Nesting (Fig. 3.2, 3.10), ``clipbox.py``:
@@ -70,10 +75,15 @@ from jaxgfx._src.terrain.functions import SinTerrain as SinTerrain
 from jaxgfx._src.terrain.functions import Union as Union
 from jaxgfx._src.terrain.functions import XorTerrain as XorTerrain
 from jaxgfx._src.terrain.functions import int_sin as int_sin
+from jaxgfx._src.terrain.heightmap import HeightmapData as HeightmapData
+from jaxgfx._src.terrain.heightmap import HeightmapMapping as HeightmapMapping
 from jaxgfx._src.terrain.heightmap import HeightmapTerrain as HeightmapTerrain
 from jaxgfx._src.terrain.heightmap import VolumeTerrain as VolumeTerrain
+from jaxgfx._src.terrain.heightmap import default_viewer as default_viewer
+from jaxgfx._src.terrain.heightmap import ground_height as ground_height
 from jaxgfx._src.terrain.heightmap import heightmap_terrain as heightmap_terrain
 from jaxgfx._src.terrain.heightmap import load_heightmap as load_heightmap
+from jaxgfx._src.terrain.heightmap import read_heightmap as read_heightmap
 from jaxgfx._src.terrain.heightmap import volume_terrain as volume_terrain
 from jaxgfx._src.terrain.meshing import ClipBoxMesh as ClipBoxMesh
 from jaxgfx._src.terrain.meshing import seam_occupancy as seam_occupancy
@@ -88,6 +98,7 @@ from jaxgfx._src.terrain.postprocess import smooth_mesh as smooth_mesh
 from jaxgfx._src.terrain.postprocess import subdivide_mesh as subdivide_mesh
 from jaxgfx._src.terrain.sampling import as_terrain as as_terrain
 from jaxgfx._src.terrain.sampling import check_terrain as check_terrain
+from jaxgfx._src.terrain.sampling import check_viewer as check_viewer
 from jaxgfx._src.terrain.sampling import sample_terrain as sample_terrain
 from jaxgfx._src.terrain.worker import GeometryWorker as GeometryWorker
 
@@ -109,14 +120,20 @@ __all__ = [
     "csg_terrain",
     "random_csg_terrain",
     # 3.5.2 height maps, 3.3.1 volumes
+    "HeightmapData",
+    "HeightmapMapping",
     "HeightmapTerrain",
     "VolumeTerrain",
+    "read_heightmap",
     "load_heightmap",
     "heightmap_terrain",
+    "ground_height",
+    "default_viewer",
     "volume_terrain",
     # 3.4.3 validation and sampling
     "as_terrain",
     "check_terrain",
+    "check_viewer",
     "sample_terrain",
     # 3.4.1-3.4.3 Clip-Box
     "ClipBox",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 from collections import Counter
@@ -14,6 +15,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxgfx import terrain as T
+from jaxgfx._src.terrain.functions import _sample_points
 
 DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "terrain")
 N = 16
@@ -195,14 +197,163 @@ def test_csg_bad_input():
 # ---------------------------------------------------------------- height maps, volumes, combinators
 
 
-def test_heightmap_terrain_matches_numpy():
-    h = np.array([[0.0, 1.0, 2.5], [4.0, 0.5, 3.0]])
-    t = T.heightmap_terrain(h, vertical_scale=2.0, cell=2, base=-3)
-    hv = np.round((h - h.min()) * 2.0) - 3
-    origin, shape = (-9, -6, -7), (14, 12, 10)
-    g = grid_points(origin, shape)
-    want = g[..., 1] < hv[np.mod(g[..., 2] // 2, 2), np.mod(g[..., 0] // 2, 3)]
-    np.testing.assert_array_equal(sample(t, origin, shape), want)
+def heightfield_np(h, m, x, z):
+    """NumPy float64 reference of the bilinear surface H(x, z) (clamped or wrapped)."""
+    rows, cols = h.shape
+    rel = (np.asarray(h, np.float64) - h.min()) * m.vertical_scale
+    u = (np.asarray(x, np.float64) - m.origin[0]) / m.cell - 0.5
+    v = (np.asarray(z, np.float64) - m.origin[1]) / m.cell - 0.5
+    u0, v0 = np.floor(u), np.floor(v)
+    fu, fv = u - u0, v - v0
+    c0, r0 = u0.astype(np.int64), v0.astype(np.int64)
+    if m.wrap:
+        c0, c1, r0, r1 = c0 % cols, (c0 + 1) % cols, r0 % rows, (r0 + 1) % rows
+    else:
+        c0, c1 = np.clip(c0, 0, cols - 1), np.clip(c0 + 1, 0, cols - 1)
+        r0, r1 = np.clip(r0, 0, rows - 1), np.clip(r0 + 1, 0, rows - 1)
+    top = rel[r0, c0] * (1 - fu) + rel[r0, c1] * fu
+    bottom = rel[r1, c0] * (1 - fu) + rel[r1, c1] * fu
+    return m.base + top * (1 - fv) + bottom * fv
+
+
+HEIGHT_TOL = 1e-3  # voxels: float32 surface vs the float64 reference
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(vertical_scale=2.0, cell=2.5, origin=(-3.25, 4.0), base=-2.5),
+        dict(vertical_scale=1.5, cell=2, base=3, wrap=True),
+    ],
+)
+def test_heightmap_terrain_matches_numpy(kw):
+    h = np.random.default_rng(3).random((4, 5)) * 6
+    t = T.heightmap_terrain(h, **kw)
+    m = t.mapping
+    origin, shape = (-14, -6, -9), (24, 20, 22)
+    for level in (0, 1):
+        g = grid_points(origin, shape, 1 << level)
+        surf = heightfield_np(h, m, g[..., 0] + 0.5, g[..., 2] + 0.5)
+        want = g[..., 1] + 0.5 < surf
+        got = sample(t, origin, shape, level)
+        unsure = np.abs(g[..., 1] + 0.5 - surf) < HEIGHT_TOL
+        np.testing.assert_array_equal(got[~unsure], want[~unsure])
+        # the per-column fast path equals vmap of the point function
+        pts = _sample_points(t, jnp.asarray(origin, jnp.int32), level, shape)
+        np.testing.assert_array_equal(got, np.asarray(pts))
+    assert got.any() and not got.all()
+
+
+def test_heightmap_mapping_formulas_and_json():
+    h = np.array([[3.0, 5.0, 4.0], [7.0, 3.5, 9.0]])
+    t = T.heightmap_terrain(h, cell=4, vertical_scale=0.5, base=10)
+    m = t.mapping
+    # centred on the world origin, rounded to whole voxels
+    assert m.origin == (-6.0, -4.0) and m.shape == (2, 3) and m.min_value == 3.0
+    assert not m.wrap and hash(m) == hash(dataclasses.replace(m))
+    d = m.to_dict()
+    assert set(d) == {"origin", "cell", "vertical_scale", "base", "shape"}
+    assert json.loads(json.dumps(d)) == d
+    r, c = np.meshgrid(np.arange(2), np.arange(3), indexing="ij")
+    pos = m.sample_position(r, c, h)
+    np.testing.assert_allclose(pos[..., 0], -6 + (c + 0.5) * 4)
+    np.testing.assert_allclose(pos[..., 2], -4 + (r + 0.5) * 4)
+    np.testing.assert_allclose(pos[..., 1], 10 + (h - 3) * 0.5)
+    # the surface passes through every sample
+    g = np.asarray(T.ground_height(t, pos[..., 0], pos[..., 2]))
+    np.testing.assert_allclose(g, pos[..., 1], atol=HEIGHT_TOL)
+    for bad, match in [
+        (dict(cell=0), "cell"),
+        (dict(vertical_scale=-1), "vertical_scale"),
+        (dict(origin=(1, 2, 3)), "origin"),
+        (dict(cell=1.5, wrap=True), "cell"),
+        (dict(base=float("nan")), "base"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            T.heightmap_terrain(h, **bad)
+    with pytest.raises(TypeError, match="wrap"):
+        T.heightmap_terrain(h, wrap=1)
+    with pytest.raises(TypeError, match="terrain"):
+        T.ground_height(T.SawTerrain(), 0.0, 0.0)
+
+
+def test_heightmap_edges_clamped_or_wrapped():
+    h = np.random.default_rng(4).random((3, 4)) * 8
+    clamp = T.heightmap_terrain(h, cell=2, vertical_scale=1.0)
+    wrap = T.heightmap_terrain(h, cell=2, vertical_scale=1.0, wrap=True)
+    m = clamp.mapping
+    far = np.array([-40.0, -9.0, 30.0, 57.0])
+    zc = np.full(4, m.origin[1] + 0.5 * m.cell)  # row 0's sample centres
+    # clamped: beyond the map the edge samples extend outwards
+    g = np.asarray(T.ground_height(clamp, far, zc))
+    np.testing.assert_allclose(g[[0, -1]], h[0, [0, -1]] - h.min(), atol=HEIGHT_TOL)
+    np.testing.assert_allclose(g, heightfield_np(h, m, far, zc), atol=HEIGHT_TOL)
+    # wrapped: periodic with period (cols cell, rows cell), also exactly at 10^9
+    period = (4 * 2, 3 * 2)
+    gw = np.asarray(T.ground_height(wrap, far, zc))
+    np.testing.assert_allclose(
+        gw, np.asarray(T.ground_height(wrap, far + period[0], zc)), atol=1e-4
+    )
+    np.testing.assert_allclose(gw, heightfield_np(h, wrap.mapping, far, zc), atol=HEIGHT_TOL)
+    a = sample(wrap, (-8, -2, -6), (8, 12, 6))
+    b = sample(wrap, (-8 + 125_000_000 * period[0], -2, -6 + 10**8 * period[1]), (8, 12, 6))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(sample(clamp, (-40, -2, -6), (8, 12, 6)), a)
+
+
+def test_heightmap_has_no_terraces_at_fine_levels():
+    # two samples 4 voxels apart: the ground between them rises voxel by voxel
+    t = T.heightmap_terrain(np.array([[0.0, 8.0]]), cell=4, vertical_scale=1.0)
+    vox = sample(t, (-4, -2, -2), (8, 14, 4))[:, :, 0]  # (x, y) of one z row
+    tops = vox.sum(axis=1)  # solid voxels per column from y = -2
+    assert np.all(np.diff(tops) >= 0) and np.all(np.diff(tops[2:6]) > 0)
+    assert len(set(tops.tolist())) >= 5
+
+
+def test_ground_height_matches_voxel_tops():
+    h = np.random.default_rng(5).random((6, 7)) * 20
+    t = T.heightmap_terrain(h, cell=3, vertical_scale=0.8, base=-7)
+    xs, zs = np.meshgrid(np.arange(-14, 14, 3), np.arange(-12, 12, 3), indexing="ij")
+    g = np.asarray(jax.jit(jax.vmap(T.ground_height, (None, 0, 0)))(t, xs + 0.5, zs + 0.5))
+    vox = sample(t, (-14, -10, -12), (28, 32, 24))[::3, :, ::3]
+    top = -10 + vox.shape[1] - np.argmax(vox[:, ::-1, :], axis=1)  # first air y
+    assert vox[:, 0].all() and not vox[:, -1].any()
+    assert np.abs(top - np.ceil(g - 0.5)).max() <= 1
+    assert np.mean(top == np.ceil(g - 0.5)) > 0.95
+
+
+def test_default_viewer_and_check_viewer():
+    h = np.random.default_rng(6).random((8, 8)) * 10
+    t = T.heightmap_terrain(h, cell=2, origin=(100, -50))
+    x, y, z = T.default_viewer(t, height=5)
+    assert (x, z) == (108, -42)
+    g = float(T.ground_height(t, x + 0.5, z + 0.5))
+    assert y == int(np.ceil(g - 0.5)) + 5
+    assert T.check_viewer(t, (x, y, z)) == (x, y, z)
+    assert T.check_viewer(t, T.default_viewer(t)) is not None
+    with pytest.raises(ValueError, match="viewer .* inside solid ground"):
+        T.check_viewer(t, (x, y - 6, z))
+    with pytest.raises(ValueError, match="camera"):
+        T.check_viewer(T.SawTerrain(), (0, -(2**31), 0), name="camera")
+    with pytest.raises(ValueError, match="viewer"):
+        T.check_viewer(t, (0.5, 1, 2))
+
+
+@pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
+def test_st_helens_true_proportions():
+    d = T.read_heightmap(os.path.join(DATA, "SainteHelens.dem"))
+    assert d.spacing == 30.0 and d.height_unit == 1.0 and d.heights.shape == (466, 327)
+    t = T.heightmap_terrain(os.path.join(DATA, "SainteHelens.dem"), cell=2)
+    m = t.mapping
+    assert m.vertical_scale == pytest.approx(2 / 30) and m.origin == (-327, -466)
+    # the summit stands (2543 - 682) / 30 * 2 voxels above the base, where the file puts it
+    r, c = np.unravel_index(np.argmax(d.heights), d.heights.shape)
+    x, y, z = m.sample_position(r, c, d.heights[r, c])
+    assert y == pytest.approx((2543 - 682) / 15)
+    assert float(T.ground_height(t, x, z)) == pytest.approx(y, abs=HEIGHT_TOL)
+    img = T.read_heightmap(os.path.join(DATA, "gcanyon_elev_crop.bw.png"))
+    assert img.spacing is None and img.height_unit is None
+    assert T.heightmap_terrain(img).mapping.vertical_scale == 1.0
 
 
 @pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
@@ -411,7 +562,9 @@ TERRAINS = {
         radius=(2, 8),
         bin_size=16,
     ),
-    "heightmap": T.heightmap_terrain(np.random.default_rng(0).random((9, 7)) * 12, cell=3, base=-6),
+    "heightmap": T.heightmap_terrain(
+        np.random.default_rng(0).random((9, 7)) * 12, cell=3, vertical_scale=1.0, base=-6
+    ),
 }
 
 

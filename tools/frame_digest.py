@@ -58,7 +58,6 @@ def main(argv=None) -> int:
 
     from jaxgfx import camera as C
     from jaxgfx import raster as R
-    from jaxgfx import scene as S
     from jaxgfx import skin as SK
     from jaxgfx import terrain as T
 
@@ -69,7 +68,8 @@ def main(argv=None) -> int:
     out: dict[str, str] = {}
 
     # 1. The demo frame, every pass and the composite (what `jaxgfx demo` draws).
-    demo = S.build_demo(96, 72, key=jax.random.key(0))
+    build_demo = _mod("jaxgfx.showcase", "jaxgfx.scene").build_demo
+    demo = build_demo(96, 72, key=jax.random.key(0))
     frames = []
     for name, fn, fn_args, _ in demo.passes:
         res = jax.block_until_ready(fn(*fn_args))

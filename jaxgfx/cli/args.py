@@ -33,6 +33,7 @@ __all__ = [
     "bounded_float",
     "nonnegative_int",
     "join_negative_values",
+    "add_up_argument",
     "check_out_file",
     "check_out_dir",
     "memory_limit",
@@ -174,6 +175,16 @@ def join_negative_values(argv: Sequence[str]) -> list[str]:
         else:
             out.append(tok)
     return out
+
+
+def add_up_argument(parser: argparse.ArgumentParser) -> None:
+    """Adds ``--up x|y|z`` (a mesh file's up axis, default y) for :func:`jaxgfx.io.load_mesh`."""
+    parser.add_argument(
+        "--up",
+        choices=("x", "y", "z"),
+        default="y",
+        help="the mesh file's up axis, turned to y (z for most scans, e.g. Stanford Lucy)",
+    )
 
 
 def _check_parent(option: str, path: Path) -> None:

@@ -1,10 +1,18 @@
-"""``jaxgfx render`` and ``jaxgfx sweep``: a mesh drawn by the rasterizer, one view or an orbit."""
+"""``jaxgfx render`` and ``jaxgfx sweep``: a mesh drawn by the rasterizer, one view or an orbit.
+
+A ``.glb`` with a skinned mesh (a glTF character such as the sample Fox) is drawn as glTF
+means it: the skinned mesh posed by its joints (the bind pose, or ``--time`` seconds into its
+first animation clip; linear blend skinning), plus the file's other meshes at their node
+transforms.  trimesh, which reads every other file, ignores skins and draws the character at
+its mesh node's transform (for the Fox: a dot beside its stand).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import time
 
 import numpy as np
@@ -12,6 +20,7 @@ import numpy as np
 from jaxgfx.cli.args import (
     PIXEL_BYTES,
     CliError,
+    add_up_argument,
     bounded_float,
     check_image,
     check_memory,
@@ -22,6 +31,9 @@ from jaxgfx.cli.args import (
     parse_size,
     positive_int,
 )
+
+CHARACTER_COLOR = (0.85, 0.5, 0.25)
+"""The skinned mesh of a ``.glb`` is drawn in this colour (textures are not read)."""
 
 __all__ = ["register", "run_render", "run_sweep", "contact_sheet"]
 
@@ -38,7 +50,14 @@ def _framing(vertices: np.ndarray, fov: float) -> tuple[np.ndarray, float]:
     return center, radius / math.sin(math.radians(fov) / 2) * 1.1
 
 
-def _camera_for(vertices: np.ndarray, args: argparse.Namespace):
+# Default view directions (from the target to the eye): meshes from the front and a little
+# above; characters three-quarter from the side (glTF characters face +z, so the front view
+# hides their length).
+_VIEW = (0.0, 0.35, 1.0)
+_CHARACTER_VIEW = (0.8, 0.4, 0.6)
+
+
+def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=_VIEW):
     from jaxgfx.camera import camera_from_degrees, look_at
 
     w, h = args.size
@@ -49,8 +68,50 @@ def _camera_for(vertices: np.ndarray, args: argparse.Namespace):
             [x, y, z], yaw, pitch, 0.0, args.fov, w, h, radius * 1e-3, radius * 1e3
         )
     center, dist = _framing(vertices, args.fov)
-    eye = center + dist * np.array([0.0, 0.35, 1.0]) / np.linalg.norm([0.0, 0.35, 1.0])
+    eye = center + dist * np.asarray(view) / np.linalg.norm(view)
     return look_at(eye, center, args.fov, w, h, dist * 1e-3, dist * 10)
+
+
+def _is_skinned_glb(path: str) -> bool:
+    """True for a readable ``.glb`` with a skinned mesh node (read with pygltflib)."""
+    if not path.lower().endswith(".glb") or not os.path.isfile(path):
+        return False
+    import pygltflib
+
+    try:
+        doc = pygltflib.GLTF2().load(path)
+    except Exception:  # not readable as glTF: trimesh reports the error
+        return False
+    return doc is not None and any(n.skin is not None and n.mesh is not None for n in doc.nodes)
+
+
+def _skinned_scene(args: argparse.Namespace):
+    """The posed character and the file's other meshes as one :class:`MeshPass` (+ info)."""
+    from jaxgfx import skin
+    from jaxgfx.io import up_rotation
+    from jaxgfx.scene import merge_mesh_passes, mesh_pass
+
+    gskin = skin.load_gltf_skin(args.mesh)
+    t = getattr(args, "time", None)  # sweep has no --time: the bind pose
+    if t is None:
+        local = gskin.rest_trs
+    elif gskin.duration <= 0:
+        raise CliError(f"--time {t:g}: {args.mesh} has no animation")
+    elif not 0.0 <= t <= gskin.duration:
+        raise CliError(f"--time {t:g} is outside the clip, which lasts [0, {gskin.duration:g}] s")
+    else:
+        local = skin.sample_animation(gskin, t)
+    mats = skin.joint_matrices(gskin, local)
+    pos, nrm = skin.linear_blend_skinning(
+        mats, gskin.vertices, gskin.normals, gskin.joints, gskin.weights
+    )
+    rot = up_rotation(args.up).astype(np.float32)
+    color = np.tile(np.asarray(CHARACTER_COLOR, np.float32), (len(gskin.vertices), 1))
+    passes = [mesh_pass(np.asarray(pos) @ rot.T, gskin.faces, color, np.asarray(nrm) @ rot.T)]
+    for m in skin.load_gltf_meshes(args.mesh):
+        passes.append(mesh_pass(m.vertices @ rot.T, m.faces, m.colors))
+    info = dict(skinned_vertices=len(gskin.vertices), time=t, props=len(passes) - 1)
+    return merge_mesh_passes(passes), info
 
 
 def run_render(args: argparse.Namespace) -> int:
@@ -58,6 +119,9 @@ def run_render(args: argparse.Namespace) -> int:
     out = check_out_file("--out", args.out, (".png",))
     depth = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
     check_image(args.size, PIXEL_BYTES)
+    skinned = _is_skinned_glb(args.mesh)
+    if args.time is not None and not skinned:
+        raise CliError(f"--time applies to a .glb with a skinned mesh, not {args.mesh}")
 
     import jax
 
@@ -65,10 +129,13 @@ def run_render(args: argparse.Namespace) -> int:
     from jaxgfx.io import load_mesh, mesh_arrays, save_npy, save_png
     from jaxgfx.scene import mesh_pass, render_mesh_pass
 
-    m = load_mesh(args.mesh)
-    v, f, c = mesh_arrays(m)
-    cam = _camera_for(v, args)
-    mp = mesh_pass(v, f, c)
+    info: dict = {}
+    if skinned:
+        mp, info = _skinned_scene(args)
+    else:
+        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
+    v, f = np.asarray(mp.vertices), np.asarray(mp.faces)
+    cam = _camera_for(v, args, _CHARACTER_VIEW if skinned else _VIEW)
     fn = jax.jit(
         lambda cam, mp: composite(
             [background(cam), render_mesh_pass(cam, mp, cull_backfaces=args.cull)]
@@ -81,7 +148,8 @@ def run_render(args: argparse.Namespace) -> int:
     if depth is not None:
         save_npy(depth, np.asarray(frame.depth))
     cov = float(np.isfinite(np.asarray(frame.depth)).mean())
-    print(json.dumps(dict(out=str(args.out), triangles=len(f), seconds=round(dt, 3), coverage=cov)))
+    summary = dict(out=str(args.out), triangles=len(f), seconds=round(dt, 3), coverage=cov)
+    print(json.dumps({**summary, **info}))
     return 0
 
 
@@ -111,13 +179,14 @@ def run_sweep(args: argparse.Namespace) -> int:
     # a chunk of frames in flight, plus every frame's colour + depth for the contact sheet
     need = float(w) * h * (min(args.chunk, args.n) * PIXEL_BYTES + args.n * 8)
     check_memory("--size", f"{w}x{h} (with --n {args.n}, --chunk {args.chunk})", need)
-    m = load_mesh(args.mesh)
-    v, f, c = mesh_arrays(m)
-    center, dist = _framing(v, args.fov)
+    if _is_skinned_glb(args.mesh):  # a glTF character at its bind pose, with its props
+        mp, _ = _skinned_scene(args)
+    else:
+        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
+    center, dist = _framing(np.asarray(mp.vertices), args.fov)
     cams = orbit_cameras(
         center, dist, args.n, args.elevation, args.fov, w, h, dist * 1e-3, dist * 10
     )
-    mp = mesh_pass(v, f, c)
 
     def render_one(cam):
         fr = composite([background(cam), render_mesh_pass(cam, mp)])
@@ -139,8 +208,22 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Adds ``render`` and ``sweep`` to the CLI's subparsers."""
-    r = subparsers.add_parser("render", help="render a mesh file to PNG (+ depth .npy)")
-    r.add_argument("mesh", help="PLY/OBJ/GLB/STL file")
+    r = subparsers.add_parser(
+        "render",
+        help="render a mesh file to PNG (+ depth .npy); a skinned .glb is drawn posed",
+    )
+    r.add_argument(
+        "mesh",
+        help="PLY/OBJ/GLB/STL file; a .glb's skinned mesh is posed and drawn orange with the "
+        "file's other meshes",
+    )
+    r.add_argument(
+        "--time",
+        type=bounded_float(0.0, math.inf),
+        default=None,
+        help="seconds into a skinned .glb's animation, within the clip (default: bind pose)",
+    )
+    add_up_argument(r)
     r.add_argument(
         "--camera",
         type=parse_floats(5, "x,y,z,yaw,pitch"),
@@ -159,7 +242,10 @@ def register(subparsers) -> None:
     r.set_defaults(func=run_render)
 
     s = subparsers.add_parser("sweep", help="orbit N cameras around a mesh (resumable)")
-    s.add_argument("mesh", help="PLY/OBJ/GLB/STL file")
+    s.add_argument(
+        "mesh", help="PLY/OBJ/GLB/STL file; a .glb's skinned mesh is drawn at its bind pose"
+    )
+    add_up_argument(s)
     s.add_argument("--n", type=int, default=12, help="number of cameras")
     s.add_argument("--out", default="sweep", help="output directory (frames, chunks, sheet)")
     s.add_argument("--size", type=parse_size, default=(160, 120), help="WxH (default 160x120)")

@@ -51,7 +51,6 @@ def check_args(args) -> None:
 def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = None, cell: int = 1):
     """Terrain from a ``--function`` value: csg, xor, saw, sin or heightmap:PATH."""
     import jax
-    import numpy as np
 
     from jaxgfx import terrain as T
 
@@ -67,15 +66,8 @@ def make_terrain(spec: str, *, seed: int = 0, vertical_scale: float | None = Non
         path = spec.split(":", 1)[1]
         if not path:
             raise ValueError("--function heightmap:PATH needs a path")
-        h = T.load_heightmap(path)
-        rng = float(h.max() - h.min())
-        if vertical_scale is None:
-            # the relief spans an eighth of the map's width: hills, not needles
-            vertical_scale = max(h.shape) * cell / 8.0 / rng if rng > 0 else 1.0
-        base = -int(round(rng * vertical_scale / 2))
-        return T.heightmap_terrain(
-            np.asarray(h), vertical_scale=vertical_scale, cell=cell, base=base
-        )
+        # true proportions from the file where it says them (USGS DEM spacing, units)
+        return T.heightmap_terrain(path, cell=cell, vertical_scale=vertical_scale)
     raise ValueError(f"--function must be one of {', '.join(FUNCTIONS)}, got {spec!r}")
 
 
@@ -174,7 +166,7 @@ def register(subparsers) -> None:
         "--vertical-scale",
         type=bounded_float(0.0, math.inf, open_interval=True),
         default=None,
-        help="heightmap voxels per unit (default: relief an eighth of the map's width)",
+        help="heightmap voxels per height unit (default: true DEM proportions; cell for images)",
     )
     p.add_argument("--cell", type=positive_int, default=1, help="heightmap voxels per pixel")
     p.set_defaults(func=run)

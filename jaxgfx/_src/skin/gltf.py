@@ -18,7 +18,9 @@ import numpy as np
 
 __all__ = [
     "GltfSkin",
+    "GltfMesh",
     "load_gltf_skin",
+    "load_gltf_meshes",
     "trs_matrix",
     "sample_animation",
     "joint_globals",
@@ -53,6 +55,15 @@ class GltfSkin(NamedTuple):
     anim_times: tuple  # per joint and path ('translation', 'rotation', 'scale'): key times or None
     anim_values: tuple  # the matching key values
     duration: float  # clip length in seconds
+
+
+class GltfMesh(NamedTuple):
+    """One unskinned triangle primitive of a glTF scene, in world space (its node transform)."""
+
+    vertices: np.ndarray  # shape=(V, 3), float32, world positions
+    faces: np.ndarray  # shape=(F, 3), int32
+    colors: np.ndarray  # shape=(V, 3), float32 in [0, 1]: COLOR_0, else the base colour factor
+    name: str  # the node's name
 
 
 def _read_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
@@ -104,6 +115,77 @@ def _node_matrix(node) -> np.ndarray:
     return trs_matrix(_node_trs(node))
 
 
+def _node_parents(gltf) -> dict[int, int]:
+    return {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
+
+
+def _node_global(gltf, node_parent: dict[int, int], n: int) -> np.ndarray:
+    """Global transform (4, 4) of node ``n`` (identity for ``n == -1``)."""
+    m = np.eye(4)
+    while n != -1:
+        m = _node_matrix(gltf.nodes[n]) @ m
+        n = node_parent.get(n, -1)
+    return m
+
+
+def _load_glb(path):
+    """(pygltflib document, binary blob) of a ``.glb`` file, with the errors naming ``path``."""
+    import pygltflib
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no such file {path}")
+    try:
+        gltf = pygltflib.GLTF2().load(str(path))
+    except Exception as exc:  # pygltflib raises many types for broken files
+        raise ValueError(
+            f"path: {path} is not a readable glTF: {type(exc).__name__}: {exc}"
+        ) from exc
+    blob = gltf.binary_blob() if gltf is not None else None
+    if blob is None:
+        raise ValueError(f"path: {path} has no binary buffer (only .glb is supported)")
+    return gltf, blob
+
+
+def load_gltf_meshes(path) -> list[GltfMesh]:
+    """Every unskinned triangle primitive of a ``.glb`` placed by its node transform.
+
+    The props that ride along with a character (the Fox's stand); skinned nodes are left out
+    (pose them with :func:`load_gltf_skin`).  Textures are not read: a primitive is coloured by
+    its ``COLOR_0`` or its material's base colour factor (white without a material).
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: the file is not a binary glTF.
+    """
+    gltf, blob = _load_glb(path)
+    parents = _node_parents(gltf)
+    out = []
+    for i, node in enumerate(gltf.nodes):
+        if node.mesh is None or node.skin is not None:
+            continue
+        world = _node_global(gltf, parents, i)
+        for prim in gltf.meshes[node.mesh].primitives:
+            if prim.mode not in (None, 4) or prim.attributes.POSITION is None:
+                continue  # points and lines are not drawn
+            v = _read_accessor(gltf, blob, prim.attributes.POSITION).astype(np.float64)
+            if prim.indices is None:
+                f = np.arange(len(v), dtype=np.int32).reshape(-1, 3)
+            else:
+                f = _read_accessor(gltf, blob, prim.indices).reshape(-1, 3).astype(np.int32)
+            if prim.attributes.COLOR_0 is not None:
+                c = _read_accessor(gltf, blob, prim.attributes.COLOR_0)[:, :3].astype(np.float32)
+            else:
+                base = [1.0, 1.0, 1.0, 1.0]
+                if prim.material is not None:
+                    pbr = gltf.materials[prim.material].pbrMetallicRoughness
+                    base = (pbr.baseColorFactor if pbr is not None else None) or base
+                c = np.tile(np.asarray(base[:3], np.float32), (len(v), 1))
+            wv = v @ world[:3, :3].T + world[:3, 3]
+            out.append(GltfMesh(wv.astype(np.float32), f, c, node.name or f"node {i}"))
+    return out
+
+
 def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
     """Read the first skinned mesh (or ``mesh_index``), its skin and its first animation.
 
@@ -119,15 +201,7 @@ def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
         FileNotFoundError: the file does not exist.
         ValueError: the file has no skinned mesh or the mesh lacks JOINTS_0 / WEIGHTS_0.
     """
-    import pygltflib
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"path: no such file {path}")
-    gltf = pygltflib.GLTF2().load(str(path))
-    blob = gltf.binary_blob()
-    if blob is None:
-        raise ValueError(f"path: {path} has no binary buffer (only .glb is supported)")
+    gltf, blob = _load_glb(path)
     skinned = [i for i, n in enumerate(gltf.nodes) if n.skin is not None and n.mesh is not None]
     if not skinned:
         raise ValueError(f"path: {path} has no skinned mesh node")
@@ -151,23 +225,18 @@ def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
     joint_nodes = list(skin.joints)
     ibm = _read_accessor(gltf, blob, skin.inverseBindMatrices).astype(np.float64)
     ibm = ibm.reshape(-1, 4, 4).transpose(0, 2, 1)  # glTF matrices are column-major
-    node_parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
+    node_parent = _node_parents(gltf)
     index_of = {n: j for j, n in enumerate(joint_nodes)}
     parents = np.array([index_of.get(node_parent.get(n, -1), -1) for n in joint_nodes], np.int32)
     for j, p in enumerate(parents):
         if p >= j:
             raise ValueError("path: skin joints are not listed parents-first (unsupported)")
 
-    def global_of(n):
-        m = np.eye(4)
-        while n != -1:
-            m = _node_matrix(gltf.nodes[n]) @ m
-            n = node_parent.get(n, -1)
-        return m
-
     root_parent = np.stack(
         [
-            np.eye(4) if parents[j] >= 0 else global_of(node_parent.get(n, -1))
+            np.eye(4)
+            if parents[j] >= 0
+            else _node_global(gltf, node_parent, node_parent.get(n, -1))
             for j, n in enumerate(joint_nodes)
         ]
     )

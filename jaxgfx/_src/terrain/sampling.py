@@ -26,9 +26,9 @@ from jaxgfx._src.terrain.functions import (
     XorTerrain,
     _sample_points,
 )
-from jaxgfx._src.terrain.heightmap import HeightmapTerrain, VolumeTerrain
+from jaxgfx._src.terrain.heightmap import HeightmapTerrain, VolumeTerrain, ground_height
 
-__all__ = ["as_terrain", "check_terrain", "sample_terrain"]
+__all__ = ["as_terrain", "check_terrain", "check_viewer", "sample_terrain"]
 
 
 # --------------------------------------------------------------------------------------
@@ -77,6 +77,35 @@ def check_terrain(terrain, name: str = "terrain") -> Any:
             f"got shape/dtype {got}"
         )
     return terrain
+
+
+def check_viewer(terrain, viewer, *, name: str = "viewer") -> tuple[int, int, int]:
+    """Checks that the integer ``viewer`` (x, y, z) is in air, not inside solid ground.
+
+    A viewer inside the terrain sees the inside of the surface (a ceiling); callers
+    that want it anyway skip this check.
+
+    Returns:
+        ``viewer`` as three Python ints.
+
+    Raises:
+        ValueError: naming ``name`` when it is not three integers or is inside the
+            terrain (for a height map the message gives the lowest free y).
+    """
+    v = np.asarray(viewer)
+    if v.shape != (3,) or not np.issubdtype(v.dtype, np.integer):
+        raise ValueError(f"{name} must be 3 integers (x, y, z), got {viewer!r}")
+    if np.any(np.abs(v.astype(np.int64)) > 2**31 - 1):
+        raise ValueError(f"{name} {tuple(int(a) for a in v)} is outside the int32 world")
+    p = (int(v[0]), int(v[1]), int(v[2]))
+    terrain = check_terrain(terrain)
+    if bool(terrain(jnp.asarray(p, _I32))):
+        hint = ""
+        if isinstance(terrain, HeightmapTerrain):
+            g = float(ground_height(terrain, p[0] + 0.5, p[2] + 0.5))
+            hint = f"; the lowest free y there is {int(np.ceil(g - 0.5))}"
+        raise ValueError(f"{name} {p} is inside solid ground{hint}")
+    return p
 
 
 # --------------------------------------------------------------------------------------

@@ -1,0 +1,91 @@
+"""The demo scene: every object stands on the terrain, every pass shows in the frame."""
+
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxgfx.cli import main
+from jaxgfx.showcase import build_demo, find_data
+
+GROUND_TOL = 1.0
+"""World units (level-0 terrain voxels): no bottom voxel or vertex of an object may float
+higher than this above the terrain surface under it, and its highest-standing one (the contact)
+must be within this of the surface (not sunk)."""
+
+MIN_SHARE = {"terrain pass": 0.25, "static objects pass": 0.01, "character pass": 0.004}
+"""Share of the demo frame each pass must show after compositing (README states them)."""
+
+
+def _surface(tfn, x, z, y_range):
+    """Independent column scan: y of the first air voxel above the highest solid one."""
+    lo, hi = y_range
+    ys = np.arange(lo, hi)
+    xz = np.stack([np.floor(x), np.floor(z)], -1).astype(np.int32)
+    pts = np.stack(
+        [
+            np.repeat(xz[:, 0], len(ys)),
+            np.tile(ys, len(xz)),
+            np.repeat(xz[:, 1], len(ys)),
+        ],
+        -1,
+    ).astype(np.int32)
+    solid = np.asarray(jax.vmap(tfn)(jnp.asarray(pts))).reshape(len(xz), len(ys))
+    assert not solid[:, -1].any(), "the scan range must reach the air above the ground"
+    top = np.where(solid, ys[None] + 1, lo).max(1)
+    return top
+
+
+def _check_placements(demo):
+    assert demo.placements, "the demo places objects"
+    for p in demo.placements:
+        g = _surface(demo.terrain_fn, p.bottom[:, 0], p.bottom[:, 2], demo.y_range)
+        gap = p.bottom[:, 1] - g
+        # Nothing floats, and the object touches the ground: its lowest contact is on it.
+        assert gap.max() <= GROUND_TOL and gap.min() <= GROUND_TOL, (p.name, gap.max())
+        assert gap.max() >= -GROUND_TOL, (p.name, "sunk into the ground", gap.max())
+
+
+def test_demo_objects_stand_on_procedural_ground(tmp_path):
+    demo = build_demo(32, 24, key=jax.random.key(0), data=tmp_path)  # an empty folder: no data
+    assert "procedural" in demo.description
+    names = {p.name for p in demo.placements}
+    assert {"tree", "character"} <= names
+    _check_placements(demo)
+
+
+def test_demo_objects_stand_on_the_dem(data_dir):
+    demo = build_demo(32, 24, key=jax.random.key(0), data=data_dir)
+    assert "St Helens" in demo.description and "fox" in demo.description
+    assert {"tree", "barrel", "caco", "character"} <= {p.name for p in demo.placements}
+    _check_placements(demo)
+
+
+def test_find_data_rejects_a_file(tmp_path):
+    f = tmp_path / "x"
+    f.write_text("")
+    with pytest.raises(ValueError, match="data"):
+        find_data(f)
+
+
+def test_demo_cli_writes_images_gif_and_pass_shares(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--size", "64x48", "--out", str(out), "--frames", "2"]) == 0
+    color = iio.imread(out / "color.png")
+    depth = iio.imread(out / "depth.png")
+    assert color.shape == (48, 64, 3) and depth.shape == (48, 64)
+    assert color.std() > 5  # a picture, not a flat fill
+    assert depth.max() > depth.min()
+    gif = iio.imread(out / "demo.gif")
+    assert gif.shape[0] == 2 and gif.shape[1:3] == (48, 64)
+    timing = json.loads((out / "timing.json").read_text())
+    assert {r["stage"] for r in timing["stages"]} >= {"frame total"}
+    for prefix, least in MIN_SHARE.items():
+        share = [v for k, v in timing["coverage"].items() if k.startswith(prefix)]
+        assert len(share) == 1 and share[0] >= least, (prefix, timing["coverage"])
+    assert "| stage |" in (out / "timing.md").read_text()
