@@ -312,7 +312,7 @@ def test_volumes_and_errors(data_dir, tmp_path):
     assert ct.shape == (64, 64, 93) and ct.dtype == np.int16
     vox = V.volume_to_voxels(ct, 1000, up_axis=2)
     assert vox.shape == (64, 93, 64) and len(vox.coords) > 1000
-    occ = np.transpose(ct, (0, 2, 1)) >= 1000
+    occ = np.transpose(ct, (0, 2, 1))[:, :, ::-1] >= 1000  # z up: (x, y, z) -> (x, z, -y)
     np.testing.assert_array_equal(V.voxels_to_dense(vox)[0], V.surface_mask(occ))
     with pytest.raises(ValueError, match="iso"):
         V.volume_to_voxels(vol, 300)
@@ -327,6 +327,25 @@ def test_volumes_and_errors(data_dir, tmp_path):
         V.load_volume(tmp_path / "v.mhd")
     with pytest.raises(ValueError, match="extension"):
         V.load_volume(tmp_path / "v.raw")
+
+
+@pytest.mark.parametrize("up", ["x", "y", "z", "-x", "-y", "-z"])
+def test_turn_up_is_a_rotation(up):
+    from jaxgfx._src.voxel.volume import turn_up
+    from jaxgfx.io import up_rotation
+
+    shape = (2, 3, 4)
+    src = np.stack(np.meshgrid(*map(np.arange, shape), indexing="ij"), -1)  # own index
+    out = turn_up(src, up)
+    # The source index is an affine map of the world index: A = d source / d world.
+    a = np.stack([out[tuple(np.eye(3, dtype=int)[w])] - out[0, 0, 0] for w in range(3)], 1)
+    assert sorted(np.abs(a).sum(0)) == [1, 1, 1] and round(np.linalg.det(a)) == 1  # no mirror
+    axis = "xyz".index(up[-1])
+    assert a[axis, 1] == (-1 if up.startswith("-") else 1)  # world +y walks along +/- up
+    if len(up) == 1:  # the same turn as meshes get (jaxgfx.io.up_rotation, world = R src)
+        np.testing.assert_array_equal(a, up_rotation(up).T)
+    with pytest.raises(ValueError, match="up_axis"):
+        turn_up(src, "w")
 
 
 def _sphere(shape, spacing, radius):
@@ -457,7 +476,9 @@ def test_iron_protein_loads(data_dir):
 def test_cli_volumes(tmp_path, capsys):
     from jaxgfx.cli import main
 
-    _write_raw(tmp_path, _sphere((16, 16, 8), (1, 1, 2), 6.0))
+    vol = _sphere((16, 16, 8), (1, 1, 2), 6.0)
+    vol[:3, :3, :2] = 200  # a corner block: the turns below are told apart
+    _write_raw(tmp_path, vol)
     hdr = tmp_path / "v.mhd"
     hdr.write_text(
         "NDims = 3\nDimSize = 16 16 8\nElementSpacing = 1 1 2\nElementType = MET_UCHAR\n"
@@ -466,7 +487,12 @@ def test_cli_volumes(tmp_path, capsys):
     out = tmp_path / "v.npz"
     assert main(["voxelize", str(hdr), "--out", str(out)]) == 0
     vox = V.load_scene(out)
-    assert vox.shape == (16, 16, 16) and np.ptp(_extent(vox)) <= 1
+    assert vox.shape == (16, 16, 16)
+    # --up=-z turns the scan the other way round about x: y and z reversed.
+    assert main(["voxelize", str(hdr), "--up=-z", "--out", str(tmp_path / "down.npz")]) == 0
+    down = V.voxels_to_dense(V.load_scene(tmp_path / "down.npz"))[0]
+    np.testing.assert_array_equal(down, V.voxels_to_dense(vox)[0][:, ::-1, ::-1])
+    assert not np.array_equal(down, V.voxels_to_dense(vox)[0])
     assert main(["voxelize", str(hdr), "--resolution", "8", "--out", str(out)]) == 0
     assert V.load_scene(out).shape == (8, 8, 8)
     capsys.readouterr()
@@ -474,6 +500,10 @@ def test_cli_volumes(tmp_path, capsys):
     assert "error: --iso 1000" in capsys.readouterr().err
     assert main(["voxelize", str(tmp_path / "v.vtk"), "--out", str(out)]) == 2
     assert "not found" in capsys.readouterr().err
+    assert main(["voxelize", "tree", "--resolution", "8", "--up", "z", "--out", str(out)]) == 2
+    assert "error: --up applies to meshes and volumes" in capsys.readouterr().err
+    assert main(["voxelize", "m.ply", "--resolution", "8", "--up=-z", "--out", str(out)]) == 2
+    assert "error: --up -z: meshes take x, y or z" in capsys.readouterr().err
 
 
 def test_cli_voxelize_and_render(tmp_path, capsys):

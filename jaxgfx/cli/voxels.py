@@ -30,6 +30,9 @@ from jaxgfx.cli.args import (
 
 __all__ = ["register", "run_voxelize", "run_render_voxels", "load_input"]
 
+UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
+"""``voxelize --up`` values: a mesh's up axis (x, y, z) or a volume's (any sign)."""
+
 _CONVENTIONS = (
     "Scene coordinates are voxel units, y up; a voxelized mesh of resolution R occupies "
     "[0, R) on its longest axis with its lowest voxel at y = 0."
@@ -53,14 +56,17 @@ def check_levels(levels: int, grid: int, what: str) -> None:
         )
 
 
-def load_input(path: str, resolution: int | None, iso: float | None, seed: int = 0):
+def load_input(
+    path: str, resolution: int | None, iso: float | None, seed: int = 0, up: str | None = None
+):
     """Reads any supported input as surface :class:`~jaxgfx.raycast.Voxels`.
 
     ``tree`` (literally) makes a procedural tree from ``seed``.  Volumes keep their
     sample spacing: they are resampled to cubic voxels whose edge is the finest
     spacing, or the longest physical axis split into ``resolution`` voxels; the
     iso value defaults to Otsu's threshold.  Meshes without vertex colours get one
-    clay colour.
+    clay colour.  ``up`` is the file's up axis (meshes: x, y or z, default y;
+    volumes: also -x, -y, -z, default z, the slice axis of a scan).
     """
     import jax
     import numpy as np
@@ -69,13 +75,18 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
 
     p = Path(path)
     ext = p.suffix.lower()
+    is_volume = bool(V.volume_suffix(p))
+    if up is not None and (ext in (".vxl", ".kv6") or path == "tree"):
+        raise CliError(f"--up applies to meshes and volumes, not to {path}")
+    if up is not None and up.startswith("-") and not is_volume:
+        raise CliError(f"--up {up}: meshes take x, y or z")
     if ext in (".vxl", ".kv6"):
         if resolution is not None:
             raise ValueError(
                 f"--resolution applies to meshes, trees and volumes, not to {ext} files"
             )
         return V.load_vxl(str(p)) if ext == ".vxl" else V.load_kv6(str(p))
-    if V.volume_suffix(p):
+    if is_volume:
         vol, spacing = V.load_volume(str(p))
         shape = V.isotropic_shape(vol.shape, spacing, resolution)
         # Resampling holds the float32 volume and its colours: about 8 bytes a voxel.
@@ -85,15 +96,17 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
             lo, hi = float(vol.min()), float(vol.max())
             if not lo < iso <= hi:
                 raise CliError(f"--iso {iso} is outside the volume's range ({lo}, {hi}]")
-        # Volume z (the slice axis of a scan) becomes world y.
-        return V.volume_to_voxels(vol, iso, up_axis=2, spacing=spacing, resolution=resolution)
+        # By default volume z (the slice axis of a scan) becomes world y.
+        return V.volume_to_voxels(
+            vol, iso, up_axis=up or "z", spacing=spacing, resolution=resolution
+        )
     if resolution is None:
         raise ValueError("--resolution is required for meshes and trees")
     if path == "tree":
         return V.procedural_tree(resolution, key=jax.random.key(seed))
     from jaxgfx.io import load_mesh
 
-    mesh = load_mesh(p)
+    mesh = load_mesh(p, up=up or "y")
     colors = None
     visual = getattr(mesh, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
@@ -112,7 +125,7 @@ def run_voxelize(args) -> int:
     from jaxgfx import raycast as V
 
     t0 = time.perf_counter()
-    vox = load_input(args.input, args.resolution, args.iso, args.seed)
+    vox = load_input(args.input, args.resolution, args.iso, args.seed, args.up)
     check_levels(args.levels, max(vox.shape), "largest grid axis")
     rle = V.encode_rle(vox, levels=args.levels)
     st = V.rle_stats(rle)
@@ -258,6 +271,9 @@ def register(subparsers) -> None:
     p.add_argument("--iso", type=float, default=None,
                    help="iso threshold for volumes (default: Otsu's threshold of the values, "
                    "the boundary between air and the object)")  # fmt: skip
+    p.add_argument("--up", choices=UP_AXES, default=None,
+                   help="the file's up axis, turned to y: meshes x|y|z (default y), volumes "
+                   "also -x|-y|-z (default z, the slice axis; write --up=-z)")  # fmt: skip
     p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
     p.add_argument("--out", required=True, help="output scene (.npz)")

@@ -23,6 +23,7 @@ from jaxgfx._src.voxel.volume import (
     load_with_simpleitk,
     otsu_threshold,
     resample_isotropic,
+    turn_up,
 )
 from jaxgfx._src.voxel.voxset import Voxels, dense_to_voxels, make_voxels
 
@@ -211,7 +212,7 @@ def volume_to_voxels(
     volume,
     iso: float | None = None,
     *,
-    up_axis: int = 1,
+    up_axis: int | str = 1,
     spacing=None,
     resolution: int | None = None,
 ) -> Voxels:
@@ -230,7 +231,10 @@ def volume_to_voxels(
         iso: threshold, strictly inside the data range; None: Otsu's threshold of
             the volume's values (:func:`~jaxgfx._src.voxel.volume.otsu_threshold`,
             the boundary between air and the scanned object).
-        up_axis: which volume axis becomes world y.
+        up_axis: which volume axis becomes world +y: 0, 1, 2 (x, y, z) or one of
+            ``'x'``, ``'y'``, ``'z'``, ``'-x'``, ``'-y'``, ``'-z'``; the volume is
+            rotated (not mirrored), e.g. z up maps ``(x, y, z)`` to ``(x, z, -y)``
+            (:func:`~jaxgfx._src.voxel.volume.turn_up`).
         spacing: optional (3,) sample spacing per volume axis (before ``up_axis``).
         resolution: optional voxel count of the longest physical axis.
 
@@ -241,8 +245,7 @@ def volume_to_voxels(
     vol = np.asarray(volume)
     if vol.ndim != 3:
         raise ValueError(f"volume must be 3-D, got shape {vol.shape}")
-    if up_axis not in (0, 1, 2):
-        raise ValueError(f"up_axis must be 0, 1 or 2, got {up_axis}")
+    turn_up(np.empty((1, 1, 1)), up_axis)  # checks up_axis before any work
     lo, hi = float(vol.min()), float(vol.max())
     if iso is None:
         iso = otsu_threshold(vol)
@@ -250,8 +253,7 @@ def volume_to_voxels(
         raise ValueError(f"iso {iso} outside the data range ({lo}, {hi}]")
     if spacing is not None or resolution is not None:
         vol = resample_isotropic(vol, np.ones(3) if spacing is None else spacing, resolution)
-    order = {0: (1, 0, 2), 1: (0, 1, 2), 2: (0, 2, 1)}[up_axis]
-    vol = np.transpose(vol, order)
+    vol = turn_up(vol, up_axis)
     occ = vol >= iso
     t = np.clip((vol.astype(np.float64) - iso) / max(hi - iso, 1e-12), 0, 1)[..., None]
     c0 = np.array([90, 60, 30], np.float64)

@@ -39,6 +39,8 @@ __all__ = [
     "isotropic_shape",
     "resample_isotropic",
     "otsu_threshold",
+    "UP_AXES",
+    "turn_up",
 ]
 
 _VTK_TYPES = {
@@ -278,3 +280,42 @@ def otsu_threshold(volume, bins: int = 256) -> float:
     gaps = np.flatnonzero(np.diff(best) != 1)
     last = best[gaps[0]] if len(gaps) else best[-1]
     return float(0.5 * (edges[best[0] + 1] + edges[last + 1]))
+
+
+UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
+"""The volume axes that :func:`turn_up` can turn to world +y."""
+
+# For each up axis: (volume axis, flipped) for world x, y, z.  Proper rotations
+# (a scan is not mirrored): z up is (x, y, z) -> (x, z, -y), x up (x, y, z) ->
+# (-y, x, z), as jaxgfx.io.up_rotation turns meshes; the negative axes turn the
+# other way round (-z up: (x, -z, y)) or upside down (-y up: (x, -y, -z)).
+_TURNS = {
+    "x": ((1, True), (0, False), (2, False)),
+    "y": ((0, False), (1, False), (2, False)),
+    "z": ((0, False), (2, False), (1, True)),
+    "-x": ((1, False), (0, True), (2, False)),
+    "-y": ((0, False), (1, True), (2, True)),
+    "-z": ((0, False), (2, True), (1, False)),
+}
+
+
+def turn_up(volume: np.ndarray, up) -> np.ndarray:
+    """Rotates an ``(X, Y, Z, ...)`` array so that the volume axis ``up`` becomes +y.
+
+    Args:
+        volume: array whose first three axes are the volume's x, y, z.
+        up: one of :data:`UP_AXES`, or an int 0, 1, 2 for ``'x'``, ``'y'``, ``'z'``.
+
+    Returns:
+        A view of ``volume`` (axes transposed and flipped), a proper rotation.
+    """
+    if isinstance(up, (int, np.integer)) and not isinstance(up, bool) and 0 <= up <= 2:
+        up = "xyz"[int(up)]
+    if up not in _TURNS:
+        raise ValueError(f"up_axis must be 0, 1, 2 or one of {UP_AXES}, got {up!r}")
+    turn = _TURNS[up]
+    out = np.transpose(volume, tuple(a for a, _ in turn) + tuple(range(3, volume.ndim)))
+    for world, (_, flip) in enumerate(turn):
+        if flip:
+            out = np.flip(out, axis=world)
+    return out
