@@ -465,6 +465,18 @@ def test_vtk_structured_points(tmp_path):
         V.load_volume(tmp_path / "x.nii")
 
 
+def test_simpleitk_formats(tmp_path):
+    sitk = pytest.importorskip("SimpleITK", reason="the optional extra jaxgfx[volumes]")
+    vol = np.arange(5 * 4 * 3, dtype=np.int16).reshape(5, 4, 3)
+    image = sitk.GetImageFromArray(vol.transpose(2, 1, 0))  # SimpleITK arrays are (z, y, x)
+    image.SetSpacing((0.5, 1.0, 2.0))
+    for name in ("v.nii.gz", "v.mha", "v.nrrd"):  # .nrrd: attached data, read by SimpleITK
+        sitk.WriteImage(image, str(tmp_path / name))
+        got, spacing = V.load_volume(tmp_path / name)
+        np.testing.assert_array_equal(got, vol)
+        np.testing.assert_allclose(spacing, [0.5, 1.0, 2.0])
+
+
 def test_iron_protein_loads(data_dir):
     vol, spacing = V.load_volume(data_dir / "volumes" / "ironProt.vtk")
     assert vol.shape == (68, 68, 68) and vol.dtype == np.uint8
