@@ -6,10 +6,13 @@ A reader's table of contents: thesis section -> function (implementation in
 4.3 Input data -- every input becomes a :class:`Voxels` list of coloured surface voxels
     (``voxset``): :func:`make_voxels`, :func:`dense_to_voxels`, :func:`voxels_to_dense`,
     :func:`surface_mask`, :func:`surface_voxels` (Fig. 4.10), :func:`crop_voxels`.
-4.3.1 Polygon data import: :func:`voxelize_mesh` (edge interpolation, Eq. 4.1; ``voxelize``).
-4.3.2 Volume data import: :func:`load_volume` (MetaImage / NRRD), :func:`volume_to_voxels`
-    (iso threshold); Voxlap's :func:`load_vxl` / :func:`load_kv6`; :func:`save_scene` /
-    :func:`load_scene` (``formats``).
+4.3.1 Polygon data import: :func:`voxelize_mesh` (edge interpolation, Eq. 4.1; vertex
+    colours or one material colour, :data:`CLAY`; ``voxelize``).
+4.3.2 Volume data import: :func:`load_volume` (MetaImage / NRRD / VTK legacy; more with
+    SimpleITK, ``jaxgfx[volumes]``), :func:`volume_to_voxels` (iso threshold, default
+    :func:`otsu_threshold`; cubic voxels from the spacing, :func:`resample_isotropic`,
+    :func:`isotropic_shape`) (``formats``, ``volume``); Voxlap's :func:`load_vxl` /
+    :func:`load_kv6`; :func:`save_scene` / :func:`load_scene` (``formats``).
 4.3.3 Procedural trees: :func:`procedural_tree` (``tree``).
 4.4.6 Pre-processing -- the RLE element ``skip << 6 | draw``: :data:`SKIP_BITS`,
     :data:`DRAW_BITS`, :data:`MAX_SKIP`, :data:`MAX_DRAW`, :func:`pack_element`,
@@ -65,6 +68,7 @@ from jaxgfx._src.voxel.formats import load_scene as load_scene
 from jaxgfx._src.voxel.formats import load_volume as load_volume
 from jaxgfx._src.voxel.formats import load_vxl as load_vxl
 from jaxgfx._src.voxel.formats import save_scene as save_scene
+from jaxgfx._src.voxel.formats import volume_suffix as volume_suffix
 from jaxgfx._src.voxel.formats import volume_to_voxels as volume_to_voxels
 from jaxgfx._src.voxel.planes import PlaneParams as PlaneParams
 from jaxgfx._src.voxel.planes import Segments as Segments
@@ -83,6 +87,10 @@ from jaxgfx._src.voxel.render import render_rle as render_rle
 from jaxgfx._src.voxel.traverse import traverse_plane as traverse_plane
 from jaxgfx._src.voxel.traverse import traverse_planes as traverse_planes
 from jaxgfx._src.voxel.tree import procedural_tree as procedural_tree
+from jaxgfx._src.voxel.volume import isotropic_shape as isotropic_shape
+from jaxgfx._src.voxel.volume import otsu_threshold as otsu_threshold
+from jaxgfx._src.voxel.volume import resample_isotropic as resample_isotropic
+from jaxgfx._src.voxel.voxelize import CLAY as CLAY
 from jaxgfx._src.voxel.voxelize import voxelize_mesh as voxelize_mesh
 from jaxgfx._src.voxel.voxset import MAX_VOXELS as MAX_VOXELS
 from jaxgfx._src.voxel.voxset import Voxels as Voxels
@@ -110,8 +118,13 @@ __all__ = [
     "crop_voxels",
     # 4.3.1 - 4.3.3 importers
     "voxelize_mesh",
+    "CLAY",
     "load_volume",
+    "volume_suffix",
     "volume_to_voxels",
+    "otsu_threshold",
+    "isotropic_shape",
+    "resample_isotropic",
     "load_vxl",
     "load_kv6",
     "save_scene",

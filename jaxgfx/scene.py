@@ -213,7 +213,11 @@ class VoxelPass:
 
 
 def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
-    """Per-plane RLE ray casting with the shared camera, shaded by screen-space normals."""
+    """Per-plane RLE ray casting with the shared camera, lit by :func:`jaxgfx.post.shade_voxels`.
+
+    Screen-space normals and ambient occlusion (4.5.6) from the voxel-space depth,
+    with sample radii in voxels; black where nothing was hit.
+    """
     local = dataclasses.replace(
         cam,
         position=(cam.position - vp.origin) / vp.voxel_size,
@@ -223,7 +227,5 @@ def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
     out = raycast.render_rle(
         vp.rle, local, settings=raycast.RenderSettings(num_planes=vp.num_planes)
     )
-    normals = post.screen_space_normals(local, out.depth, key=key, samples=8)
-    color = post.shade(out.color, normals)
-    hit = jnp.isfinite(out.depth)
-    return Frame(jnp.where(hit[..., None], color, 0.0), out.depth * vp.voxel_size)
+    color = post.shade_voxels(local, out.color, out.depth, key=key, samples=8)
+    return Frame(color, out.depth * vp.voxel_size)

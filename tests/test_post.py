@@ -78,3 +78,20 @@ def test_ao_and_shade_finite():
     # vmap over frames agrees with single frames.
     batch = jax.vmap(lambda x: post.ambient_occlusion(x, key=jax.random.key(1)))(jnp.stack([d, d]))
     np.testing.assert_allclose(batch[1], ao)
+
+
+def test_shade_voxels_lights_by_facing():
+    # Left half a wall facing the camera, right half nearer to the right, so it
+    # faces left, away from the light (which comes from the right): it is darker.
+    cam = camera_from_degrees([0, 0, 0], 0, 0, 0, 60, W, H)
+    xs = jnp.arange(W, dtype=jnp.float32)
+    d = jnp.where(xs < W // 2, 10.0, 10.0 + 0.8 * (W - 1 - xs))[None, :].repeat(H, 0)
+    d = d.at[:, -2:].set(jnp.inf)
+    albedo = jnp.full((H, W, 3), 0.6)
+    img = np.asarray(post.shade_voxels(cam, albedo, d, key=jax.random.key(0), background=(0, 0, 1)))
+    assert img.shape == (H, W, 3) and np.all((img >= 0) & (img <= 1))
+    np.testing.assert_array_equal(img[:, -2:], np.broadcast_to([0, 0, 1], (H, 2, 3)))
+    facing, away = img[4:-4, 3 : W // 2 - 3, 0].mean(), img[4:-4, W // 2 + 3 : -5, 0].mean()
+    assert facing > away + 0.05, (facing, away)
+    with pytest.raises(ValueError, match="radius"):
+        post.shade_voxels(cam, albedo, d, key=jax.random.key(0), ao_radius=0.0)

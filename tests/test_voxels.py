@@ -121,6 +121,9 @@ def test_voxelize_cube_shell_exact():
     want = np.ones((16, 16, 16), bool)
     want[1:-1, 1:-1, 1:-1] = False
     np.testing.assert_array_equal(occ, want)
+    # Without vertex colours every voxel has the material colour (clay by default).
+    assert np.all(vox.colors == V.CLAY)
+    assert np.all(V.voxelize_mesh(v, f, 4, color=(1, 2, 3)).colors == [1, 2, 3])
     # Vertex colours are interpolated.
     vc = np.tile([[200, 10, 10]], (8, 1))
     vox = V.voxelize_mesh(v, f, 8, vertex_colors=vc)
@@ -309,7 +312,7 @@ def test_volumes_and_errors(data_dir, tmp_path):
     assert ct.shape == (64, 64, 93) and ct.dtype == np.int16
     vox = V.volume_to_voxels(ct, 1000, up_axis=2)
     assert vox.shape == (64, 93, 64) and len(vox.coords) > 1000
-    occ = np.transpose(ct, (0, 2, 1)) >= 1000
+    occ = np.transpose(ct, (0, 2, 1))[:, :, ::-1] >= 1000  # z up: (x, y, z) -> (x, z, -y)
     np.testing.assert_array_equal(V.voxels_to_dense(vox)[0], V.surface_mask(occ))
     with pytest.raises(ValueError, match="iso"):
         V.volume_to_voxels(vol, 300)
@@ -326,8 +329,199 @@ def test_volumes_and_errors(data_dir, tmp_path):
         V.load_volume(tmp_path / "v.raw")
 
 
+@pytest.mark.parametrize("up", ["x", "y", "z", "-x", "-y", "-z"])
+def test_turn_up_is_a_rotation(up):
+    from jaxgfx._src.voxel.volume import turn_up
+    from jaxgfx.io import up_rotation
+
+    shape = (2, 3, 4)
+    src = np.stack(np.meshgrid(*map(np.arange, shape), indexing="ij"), -1)  # own index
+    out = turn_up(src, up)
+    # The source index is an affine map of the world index: A = d source / d world.
+    a = np.stack([out[tuple(np.eye(3, dtype=int)[w])] - out[0, 0, 0] for w in range(3)], 1)
+    assert sorted(np.abs(a).sum(0)) == [1, 1, 1] and round(np.linalg.det(a)) == 1  # no mirror
+    axis = "xyz".index(up[-1])
+    assert a[axis, 1] == (-1 if up.startswith("-") else 1)  # world +y walks along +/- up
+    if len(up) == 1:  # the same turn as meshes get (jaxgfx.io.up_rotation, world = R src)
+        np.testing.assert_array_equal(a, up_rotation(up).T)
+    with pytest.raises(ValueError, match="up_axis"):
+        turn_up(src, "w")
+
+
+def _sphere(shape, spacing, radius):
+    """uint8 volume: 200 inside a sphere of ``radius`` (physical units) about the centre, 10 out."""
+    axes = [(np.arange(n) + 0.5) * s for n, s in zip(shape, spacing)]
+    grid = np.meshgrid(*axes, indexing="ij")
+    centre = np.asarray(shape) * np.asarray(spacing) / 2
+    r = np.sqrt(sum((g - c) ** 2 for g, c in zip(grid, centre)))
+    return np.where(r < radius, 200, 10).astype(np.uint8)
+
+
+def _write_raw(tmp_path, vol, name="v.raw"):
+    (tmp_path / name).write_bytes(np.ascontiguousarray(vol.transpose(2, 1, 0)).tobytes())
+
+
+def _extent(vox):
+    c = np.asarray(vox.coords)
+    return c.max(0) - c.min(0) + 1
+
+
+def test_volume_spacing_kept(tmp_path):
+    # A ball sampled at spacing (1, 1, 2): 16 x 16 x 8 samples, 16 units each way.
+    vol = _sphere((16, 16, 8), (1, 1, 2), 6.0)
+    _write_raw(tmp_path, vol)
+    (tmp_path / "v.mhd").write_text(
+        "NDims = 3\nDimSize = 16 16 8\nElementSpacing = 1 1 2\nElementType = MET_UCHAR\n"
+        "ElementDataFile = v.raw\n"
+    )
+    (tmp_path / "v.nhdr").write_text(
+        "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 16 16 8\nencoding: raw\n"
+        "space directions: (1,0,0) (0,1,0) (0,0,2)\ndata file: v.raw\n"
+    )
+    for name in ("v.mhd", "v.nhdr"):
+        got, spacing = V.load_volume(tmp_path / name)
+        np.testing.assert_array_equal(got, vol)
+        np.testing.assert_allclose(spacing, [1, 1, 2])
+        vox = V.volume_to_voxels(got, spacing=spacing, up_axis=2)  # iso: Otsu
+        assert vox.shape == (16, 16, 16)
+        ext = _extent(vox)
+        assert ext.max() - ext.min() <= 1 and ext.min() >= 10, ext  # a ball, not an egg
+    flat = _extent(V.volume_to_voxels(vol, up_axis=2))  # the spacing dropped: half as tall
+    assert abs(flat[1] * 2 - flat[0]) <= 2
+    assert (
+        V.volume_to_voxels(vol, 100, spacing=(1, 1, 2), resolution=8, up_axis=2).shape == (8,) * 3
+    )
+    with pytest.raises(ValueError, match="spacing"):
+        V.volume_to_voxels(vol, 100, spacing=(1, 0, 2))
+
+
+def test_resample_isotropic_is_exact_for_linear_data():
+    spacing = np.array([1.0, 2.0, 3.0])
+    shape = (6, 5, 4)
+    x, y, z = np.meshgrid(*[(np.arange(n) + 0.5) * s for n, s in zip(shape, spacing)],
+                          indexing="ij")  # fmt: skip
+    out = V.resample_isotropic(2 * x + 3 * y + 5 * z, spacing)
+    assert out.shape == V.isotropic_shape(shape, spacing) == (6, 10, 12)
+    X, Y, Z = np.meshgrid(*[np.arange(n) + 0.5 for n in out.shape], indexing="ij")
+    # Inside the outermost sample centres the interpolation reproduces the plane.
+    inside = (Y >= 1) & (Y <= 9) & (Z >= 1.5) & (Z <= 10.5)
+    np.testing.assert_allclose(out[inside], (2 * X + 3 * Y + 5 * Z)[inside], atol=1e-4)
+
+
+def test_otsu_matches_brute_force():
+    rng = np.random.default_rng(0)
+    v = np.concatenate([rng.normal(50, 6, 3000), rng.normal(170, 12, 1000)])
+    v = np.clip(np.round(v), 0, 255).astype(np.uint8)
+
+    def between(t):
+        hi = v >= t
+        w = hi.mean()
+        return w * (1 - w) * (v[hi].mean() - v[~hi].mean()) ** 2
+
+    best = max(range(int(v.min()) + 1, int(v.max()) + 1), key=between)
+    t = V.otsu_threshold(v)
+    assert v.min() < t <= v.max()
+    assert between(t) >= between(best) * (1 - 1e-9)  # same split (integer data, <1-wide bins)
+    with pytest.raises(ValueError, match="constant"):
+        V.otsu_threshold(np.ones(5))
+
+
+def _vtk_header(mode, dims, spacing_line, kind="short"):
+    return (
+        "# vtk DataFile Version 3.0\ntest volume\n\n" + mode + "\n\nDATASET STRUCTURED_POINTS\n"
+        f"DIMENSIONS {dims[0]} {dims[1]} {dims[2]}\n{spacing_line}\nORIGIN 0 0 0\n"
+        f"POINT_DATA {int(np.prod(dims))}\nSCALARS density {kind} 1\nLOOKUP_TABLE default\n"
+    ).encode()
+
+
+def test_vtk_structured_points(tmp_path):
+    rng = np.random.default_rng(1)
+    vol = rng.integers(-300, 3000, (5, 4, 3)).astype(np.int16)
+    flat = vol.transpose(2, 1, 0).ravel()  # x varies fastest
+    p = tmp_path / "b.vtk"
+    p.write_bytes(
+        _vtk_header("BINARY", vol.shape, "SPACING 0.5 0.5 2") + flat.astype(">i2").tobytes()
+    )
+    got, spacing = V.load_volume(p)
+    np.testing.assert_array_equal(got, vol)
+    np.testing.assert_allclose(spacing, [0.5, 0.5, 2])
+    q = tmp_path / "a.vtk"
+    q.write_bytes(
+        _vtk_header("ASCII", vol.shape, "ASPECT_RATIO 1 2 3") + " ".join(map(str, flat)).encode()
+    )
+    got, spacing = V.load_volume(q)
+    np.testing.assert_array_equal(got, vol)
+    np.testing.assert_allclose(spacing, [1, 2, 3])
+    p.write_bytes(p.read_bytes()[:-7])
+    with pytest.raises(ValueError, match="truncated"):
+        V.load_volume(p)
+    p.write_bytes(b"# vtk DataFile Version 3.0\nmesh\nASCII\nDATASET POLYDATA\nPOINTS 0 float\n")
+    with pytest.raises(ValueError, match="STRUCTURED_POINTS"):
+        V.load_volume(p)
+    # Other formats go through SimpleITK (optional): either it is missing (the error
+    # names the extra) or it cannot read this junk.
+    (tmp_path / "x.nii").write_bytes(b"junk")
+    with pytest.raises(ValueError, match="SimpleITK"):
+        V.load_volume(tmp_path / "x.nii")
+
+
+def test_simpleitk_formats(tmp_path):
+    sitk = pytest.importorskip("SimpleITK", reason="the optional extra jaxgfx[volumes]")
+    vol = np.arange(5 * 4 * 3, dtype=np.int16).reshape(5, 4, 3)
+    image = sitk.GetImageFromArray(vol.transpose(2, 1, 0))  # SimpleITK arrays are (z, y, x)
+    image.SetSpacing((0.5, 1.0, 2.0))
+    for name in ("v.nii.gz", "v.mha", "v.nrrd"):  # .nrrd: attached data, read by SimpleITK
+        sitk.WriteImage(image, str(tmp_path / name))
+        got, spacing = V.load_volume(tmp_path / name)
+        np.testing.assert_array_equal(got, vol)
+        np.testing.assert_allclose(spacing, [0.5, 1.0, 2.0])
+
+
+def test_iron_protein_loads(data_dir):
+    vol, spacing = V.load_volume(data_dir / "volumes" / "ironProt.vtk")
+    assert vol.shape == (68, 68, 68) and vol.dtype == np.uint8
+    np.testing.assert_allclose(spacing, [1, 1, 1])
+    vox = V.volume_to_voxels(vol, spacing=spacing, up_axis=2)
+    assert vox.shape == (68, 68, 68) and len(vox.coords) > 1000
+
+
+def test_cli_volumes(tmp_path, capsys):
+    from jaxgfx.cli import main
+
+    vol = _sphere((16, 16, 8), (1, 1, 2), 6.0)
+    vol[:3, :3, :2] = 200  # a corner block: the turns below are told apart
+    _write_raw(tmp_path, vol)
+    hdr = tmp_path / "v.mhd"
+    hdr.write_text(
+        "NDims = 3\nDimSize = 16 16 8\nElementSpacing = 1 1 2\nElementType = MET_UCHAR\n"
+        "ElementDataFile = v.raw\n"
+    )
+    out = tmp_path / "v.npz"
+    assert main(["voxelize", str(hdr), "--out", str(out)]) == 0
+    vox = V.load_scene(out)
+    assert vox.shape == (16, 16, 16)
+    # --up=-z turns the scan the other way round about x: y and z reversed.
+    assert main(["voxelize", str(hdr), "--up=-z", "--out", str(tmp_path / "down.npz")]) == 0
+    down = V.voxels_to_dense(V.load_scene(tmp_path / "down.npz"))[0]
+    np.testing.assert_array_equal(down, V.voxels_to_dense(vox)[0][:, ::-1, ::-1])
+    assert not np.array_equal(down, V.voxels_to_dense(vox)[0])
+    assert main(["voxelize", str(hdr), "--resolution", "8", "--out", str(out)]) == 0
+    assert V.load_scene(out).shape == (8, 8, 8)
+    capsys.readouterr()
+    assert main(["voxelize", str(hdr), "--iso", "1000", "--out", str(out)]) == 2
+    assert "error: --iso 1000" in capsys.readouterr().err
+    assert main(["voxelize", str(tmp_path / "v.vtk"), "--out", str(out)]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert main(["voxelize", "tree", "--resolution", "8", "--up", "z", "--out", str(out)]) == 2
+    assert "error: --up applies to meshes and volumes" in capsys.readouterr().err
+    assert main(["voxelize", "m.ply", "--resolution", "8", "--up=-z", "--out", str(out)]) == 2
+    assert "error: --up -z: meshes take x, y or z" in capsys.readouterr().err
+
+
 def test_cli_voxelize_and_render(tmp_path, capsys):
     import json
+
+    import imageio.v3 as iio
 
     from jaxgfx.cli import main
 
@@ -338,14 +532,21 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     assert line["voxels"] == len(vox.coords) > 0
     assert line["bits_per_voxel"] > 0
     png, dep = tmp_path / "f.png", tmp_path / "d.npy"
-    argv = ["render-voxels", str(scene), "--camera", "8,6,-20,0,0", "--fov", "60",
+    # No --camera: the default frames the scene; lit by default, --unlit gives albedo.
+    argv = ["render-voxels", str(scene), "--fov", "60",
             "--size", "24x16", "--out", str(png), "--depth", str(dep)]  # fmt: skip
+    assert main(argv + ["--unlit"]) == 0
+    unlit = iio.imread(png)
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["lit"] is False and len(line["camera"].split(",")) == 5
     assert main(argv) == 0
+    lit = iio.imread(png)
     depth = np.load(dep)
-    assert depth.shape == (16, 24) and np.isfinite(depth).any() and not np.isnan(depth).any()
-    assert png.stat().st_size > 0
+    assert depth.shape == (16, 24) and np.isfinite(depth).mean() > 0.1 and not np.isnan(depth).any()
+    hit = np.isfinite(depth)
+    assert np.all(lit[~hit] == 0) and np.abs(lit[hit].astype(int) - unlit[hit]).mean() > 5
     # 2x1 AA: the same view on pixels half as wide, averaged back to --size.
-    assert main(argv + ["--aa", "2x1", "--reference"]) == 0
+    assert main(argv + ["--aa", "2x1", "--reference", "--unlit"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["aa"] == "2x1"
     d_aa = np.load(dep)
     assert d_aa.shape == (16, 24)

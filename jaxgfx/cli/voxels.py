@@ -30,6 +30,9 @@ from jaxgfx.cli.args import (
 
 __all__ = ["register", "run_voxelize", "run_render_voxels", "load_input"]
 
+UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
+"""``voxelize --up`` values: a mesh's up axis (x, y, z) or a volume's (any sign)."""
+
 _CONVENTIONS = (
     "Scene coordinates are voxel units, y up; a voxelized mesh of resolution R occupies "
     "[0, R) on its longest axis with its lowest voxel at y = 0."
@@ -53,10 +56,17 @@ def check_levels(levels: int, grid: int, what: str) -> None:
         )
 
 
-def load_input(path: str, resolution: int | None, iso: float | None, seed: int = 0):
+def load_input(
+    path: str, resolution: int | None, iso: float | None, seed: int = 0, up: str | None = None
+):
     """Reads any supported input as surface :class:`~jaxgfx.raycast.Voxels`.
 
-    ``tree`` (literally) makes a procedural tree from ``seed``.
+    ``tree`` (literally) makes a procedural tree from ``seed``.  Volumes keep their
+    sample spacing: they are resampled to cubic voxels whose edge is the finest
+    spacing, or the longest physical axis split into ``resolution`` voxels; the
+    iso value defaults to Otsu's threshold.  Meshes without vertex colours get one
+    clay colour.  ``up`` is the file's up axis (meshes: x, y or z, default y;
+    volumes: also -x, -y, -z, default z, the slice axis of a scan).
     """
     import jax
     import numpy as np
@@ -65,26 +75,38 @@ def load_input(path: str, resolution: int | None, iso: float | None, seed: int =
 
     p = Path(path)
     ext = p.suffix.lower()
-    native = ext in (".vxl", ".kv6", ".mhd", ".nhdr", ".nrrd")
-    if native and resolution is not None:
-        raise ValueError(f"--resolution applies to meshes and trees, not to {ext} files")
-    if ext == ".vxl":
-        return V.load_vxl(str(p))
-    if ext == ".kv6":
-        return V.load_kv6(str(p))
-    if ext in (".mhd", ".nhdr", ".nrrd"):
-        vol, _ = V.load_volume(str(p))
-        if iso is None:
+    is_volume = bool(V.volume_suffix(p))
+    if up is not None and (ext in (".vxl", ".kv6") or path == "tree"):
+        raise CliError(f"--up applies to meshes and volumes, not to {path}")
+    if up is not None and up.startswith("-") and not is_volume:
+        raise CliError(f"--up {up}: meshes take x, y or z")
+    if ext in (".vxl", ".kv6"):
+        if resolution is not None:
+            raise ValueError(
+                f"--resolution applies to meshes, trees and volumes, not to {ext} files"
+            )
+        return V.load_vxl(str(p)) if ext == ".vxl" else V.load_kv6(str(p))
+    if is_volume:
+        vol, spacing = V.load_volume(str(p))
+        shape = V.isotropic_shape(vol.shape, spacing, resolution)
+        # Resampling holds the float32 volume and its colours: about 8 bytes a voxel.
+        option = "--resolution" if resolution is not None else "input"
+        check_memory(option, "x".join(map(str, shape)), math.prod(shape) * VOXEL_BYTES)
+        if iso is not None:
             lo, hi = float(vol.min()), float(vol.max())
-            iso = 0.5 * (lo + hi)
-        return V.volume_to_voxels(vol, iso, up_axis=2)
+            if not lo < iso <= hi:
+                raise CliError(f"--iso {iso} is outside the volume's range ({lo}, {hi}]")
+        # By default volume z (the slice axis of a scan) becomes world y.
+        return V.volume_to_voxels(
+            vol, iso, up_axis=up or "z", spacing=spacing, resolution=resolution
+        )
     if resolution is None:
         raise ValueError("--resolution is required for meshes and trees")
     if path == "tree":
         return V.procedural_tree(resolution, key=jax.random.key(seed))
     from jaxgfx.io import load_mesh
 
-    mesh = load_mesh(p)
+    mesh = load_mesh(p, up=up or "y")
     colors = None
     visual = getattr(mesh, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
@@ -103,7 +125,7 @@ def run_voxelize(args) -> int:
     from jaxgfx import raycast as V
 
     t0 = time.perf_counter()
-    vox = load_input(args.input, args.resolution, args.iso, args.seed)
+    vox = load_input(args.input, args.resolution, args.iso, args.seed, args.up)
     check_levels(args.levels, max(vox.shape), "largest grid axis")
     rle = V.encode_rle(vox, levels=args.levels)
     st = V.rle_stats(rle)
@@ -126,6 +148,37 @@ def run_voxelize(args) -> int:
     return 0
 
 
+def frame_voxels(vox, fov: float, width: int, height: int) -> list[float]:
+    """A camera ``[x, y, z, yaw, pitch]`` that frames a voxel set's bounding box.
+
+    Seen from the +z side, 20 degrees from above (yaw 180, pitch -20), at the
+    nearest distance where all eight corners of the box lie inside the view with a
+    5 % margin (like ``jaxgfx render``'s framing, but fitted to the box's corners
+    rather than its bounding sphere, so thin and flat scenes fill the frame).
+    """
+    import itertools
+
+    import numpy as np
+
+    from jaxgfx.camera import camera_basis, camera_from_degrees
+
+    c = np.asarray(vox.coords, np.float64)
+    lo, hi = (c.min(0), c.max(0) + 1.0) if len(c) else (np.zeros(3), np.asarray(vox.shape, float))
+    center = 0.5 * (lo + hi)
+    yaw, pitch = 180.0, -20.0
+    probe = camera_from_degrees(center, yaw, pitch, 0.0, fov, width, height)
+    right, up, forward = (np.asarray(v, np.float64) for v in camera_basis(probe))
+    tan_y = math.tan(math.radians(fov) / 2)
+    tan_x = tan_y * width / height
+    corners = np.array(list(itertools.product(*zip(lo, hi)))) - center
+    # Camera at center - dist * forward: a corner p is at depth dist + p.f; it is
+    # inside the view when |p.r| <= tan_x * depth and |p.u| <= tan_y * depth.
+    need = np.maximum(np.abs(corners @ right) / tan_x, np.abs(corners @ up) / tan_y)
+    dist = float(np.max(need - corners @ forward)) * 1.05 + 1.0
+    eye = center - dist * forward
+    return [*(round(float(v), 3) for v in eye), yaw, pitch]
+
+
 def run_render_voxels(args) -> int:
     """Renders a saved voxel scene to a PNG (and optionally a depth .npy)."""
     out_png = check_out_file("--out", args.out, (".png",))
@@ -138,12 +191,13 @@ def run_render_voxels(args) -> int:
     from jaxgfx import raycast as RC
     from jaxgfx.camera import camera_from_degrees, supersampled
     from jaxgfx.io import save_npy, save_png
-    from jaxgfx.post import antialias
+    from jaxgfx.post import antialias, shade_voxels
 
     vox = RC.load_scene(args.scene)
     check_levels(args.levels, max(vox.shape), "scene's largest axis")
-    x, y, z, yaw, pitch = args.camera
     w, h = args.size
+    camera = args.camera if args.camera is not None else frame_voxels(vox, args.fov, w, h)
+    x, y, z, yaw, pitch = camera
     cam = camera_from_degrees([x, y, z], yaw, pitch, 0.0, args.fov, w, h, far=args.far)
     # Anti-aliasing (4.5.6.2): the same view on a finer grid, averaged back.
     cam = supersampled(cam, args.aa)
@@ -169,7 +223,12 @@ def run_render_voxels(args) -> int:
             lod_distance=args.lod if args.lod > 0 else jnp.inf,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
-    color, depth = antialias(out.color, out.depth, args.aa)
+    color = out.color
+    if not args.unlit:
+        # Lit on the supersampled frame, before it is averaged back (4.5.6).
+        # jit of the function itself (not a new lambda) so repeated calls reuse the compile.
+        color = jax.jit(shade_voxels)(cam, color, out.depth, key=jax.random.key(0))
+    color, depth = antialias(color, out.depth, args.aa)
     jax.block_until_ready(depth)
     seconds = time.perf_counter() - t0
     save_png(out_png, color)
@@ -181,6 +240,8 @@ def run_render_voxels(args) -> int:
                 out=str(args.out),
                 depth=str(args.depth) if args.depth else None,
                 renderer="reference-dda" if args.reference else "rle-planes",
+                camera=",".join(f"{v:g}" for v in camera),
+                lit=not args.unlit,
                 seconds_incl_compile=round(seconds, 3),
                 aa="{}x{}".format(*args.aa),
                 hit_pixels=int(jnp.sum(jnp.isfinite(depth))),
@@ -197,14 +258,22 @@ def register(subparsers) -> None:
         "voxelize",
         help="mesh / volume / .vxl / .kv6 / 'tree' -> surface voxels (.npz) + RLE stats",
         description="Voxelize an input into surface voxels and report the RLE memory use "
-        "(thesis 4.3, 4.4.6). " + _CONVENTIONS,
+        "(thesis 4.3, 4.4.6). " + _CONVENTIONS + " Meshes keep their vertex colours, else "
+        "one clay colour. Volumes keep their sample spacing (resampled to cubic voxels, "
+        "trilinear) and their slice axis (z) becomes y.",
     )
-    p.add_argument("input", help="mesh (.ply/.obj/...), volume header (.mhd/.nhdr), "
-                   ".vxl, .kv6, or the word 'tree'")  # fmt: skip
+    p.add_argument("input", help="mesh (.ply/.obj/...), volume (.mhd, .nhdr/.nrrd, .vtk; "
+                   ".nii, .mha, ... with jaxgfx[volumes]), .vxl, .kv6, "
+                   "or the word 'tree'")  # fmt: skip
     p.add_argument("--resolution", type=positive_int, default=None,
-                   help="grid size of the longest axis (meshes and trees only)")  # fmt: skip
+                   help="grid size of the longest axis (meshes and trees: required; volumes: "
+                   "default the finest sample spacing is one voxel)")  # fmt: skip
     p.add_argument("--iso", type=float, default=None,
-                   help="iso threshold for volumes (default: middle of the range)")  # fmt: skip
+                   help="iso threshold for volumes (default: Otsu's threshold of the values, "
+                   "the boundary between air and the object)")  # fmt: skip
+    p.add_argument("--up", choices=UP_AXES, default=None,
+                   help="the file's up axis, turned to y: meshes x|y|z (default y), volumes "
+                   "also -x|-y|-z (default z, the slice axis; write --up=-z)")  # fmt: skip
     p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
     p.add_argument("--out", required=True, help="output scene (.npz)")
@@ -216,13 +285,21 @@ def register(subparsers) -> None:
         description="Render a scene written by 'jaxgfx voxelize' (thesis 4.5). "
         + _CONVENTIONS
         + " --camera is x,y,z,yaw,pitch: yaw in degrees about +y (0 looks along +z), "
-        "pitch in degrees (positive looks up). The --depth file holds the distance along "
+        "pitch in degrees (positive looks up); without it the camera frames the scene. "
+        "The frame is lit by screen-space normals and ambient occlusion (thesis 4.5.6) "
+        "unless --unlit. The --depth file holds the distance along "
         "the view axis in voxel units, +inf where nothing was hit.",
     )
     r.add_argument("scene", help="scene .npz from 'jaxgfx voxelize'")
     r.add_argument(
-        "--camera", type=parse_floats(5, "x,y,z,yaw,pitch"), required=True, help="x,y,z,yaw,pitch"
+        "--camera",
+        type=parse_floats(5, "x,y,z,yaw,pitch"),
+        default=None,
+        help="x,y,z,yaw,pitch (default: frames the scene from its front, 20 degrees above)",
     )
+    r.add_argument("--unlit", action="store_true",
+                   help="write the voxels' colours unshaded (default: lit by screen-space "
+                   "normals and ambient occlusion)")  # fmt: skip
     r.add_argument(
         "--fov", type=parse_fov, default=60.0, help="vertical field of view, degrees in (0, 180)"
     )

@@ -1,7 +1,10 @@
 """Reading and writing voxel data: scanned volumes (thesis 4.3.2), Voxlap files, scenes.
 
 Scanned volumes come as raw data beside a MetaImage (``.mhd``) or NRRD (``.nhdr``)
-header and are thresholded at an iso value (:func:`volume_to_voxels`).  Voxlap's
+header, as VTK legacy structured points (``.vtk``), or, with the optional SimpleITK
+(``jaxgfx[volumes]``), as NIfTI, ``.mha`` and compressed NRRD (:mod:`.volume`).  They
+are resampled to cubic voxels by their sample spacing and thresholded at an iso
+value (:func:`volume_to_voxels`).  Voxlap's
 ``.vxl`` worlds and ``.kv6`` sprites are run-length encoded surface voxels of the
 same family as the thesis's.  :func:`save_scene` / :func:`load_scene` keep a
 :class:`~jaxgfx.raycast.Voxels` in an ``.npz``.
@@ -15,9 +18,19 @@ import struct
 
 import numpy as np
 
+from jaxgfx._src.voxel.volume import (
+    load_vtk_structured_points,
+    load_with_simpleitk,
+    otsu_threshold,
+    resample_isotropic,
+    turn_up,
+)
 from jaxgfx._src.voxel.voxset import Voxels, dense_to_voxels, make_voxels
 
 __all__ = [
+    "VOLUME_SUFFIXES",
+    "SIMPLEITK_SUFFIXES",
+    "volume_suffix",
     "load_volume",
     "volume_to_voxels",
     "load_vxl",
@@ -30,6 +43,11 @@ __all__ = [
 # ---------------------------------------------------------------------------
 # 4.3.2 Volume import
 # ---------------------------------------------------------------------------
+
+VOLUME_SUFFIXES = (".mhd", ".nhdr", ".nrrd", ".vtk")
+"""Volume files read without extra packages (raw MetaImage / NRRD data, VTK legacy)."""
+SIMPLEITK_SUFFIXES = (".mha", ".nii", ".nii.gz", ".hdr", ".img", ".gipl", ".gipl.gz")
+"""Volume files read through SimpleITK, the optional extra ``jaxgfx[volumes]``."""
 
 _MET_TYPES = {
     "MET_UCHAR": "u1",
@@ -76,6 +94,18 @@ def _read_header(path: str) -> dict:
     return out
 
 
+def _nrrd_spacing(h: dict, path: str) -> list[float]:
+    """NRRD ``spacings``, else the lengths of the ``space directions`` vectors, else 1."""
+    if "spacings" in h:
+        return [float(x) for x in h["spacings"].split()]
+    if "space directions" in h:
+        vectors = re.findall(r"\(([^)]*)\)", h["space directions"])
+        if len(vectors) != 3:
+            raise ValueError(f"path: NRRD header {path!r} has space directions {vectors}, want 3")
+        return [float(np.linalg.norm([float(x) for x in v.split(",")])) for v in vectors]
+    return [1.0, 1.0, 1.0]
+
+
 def _read_raw(files, dims, dtype, what):
     want = int(np.prod(dims)) * np.dtype(dtype).itemsize
     chunks = []
@@ -93,8 +123,22 @@ def _read_raw(files, dims, dtype, what):
     return np.frombuffer(data, dtype).reshape(tuple(dims[::-1])).transpose(2, 1, 0)
 
 
+def volume_suffix(path) -> str:
+    """The volume file suffix of ``path`` (lower case, ``.nii.gz`` whole), or ``''``."""
+    name = os.fspath(path).lower()
+    for suffix in VOLUME_SUFFIXES + SIMPLEITK_SUFFIXES:
+        if name.endswith(suffix):
+            return suffix
+    return ""
+
+
 def load_volume(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """Reads a scanned volume from a MetaImage (``.mhd``) or NRRD (``.nhdr``/``.nrrd``) header.
+    """Reads a scanned volume and its sample spacing.
+
+    Built in: MetaImage (``.mhd``) and NRRD (``.nhdr``/``.nrrd``) headers with raw
+    data, and VTK legacy ``STRUCTURED_POINTS`` (``.vtk``).  Through SimpleITK (the
+    optional extra ``jaxgfx[volumes]``): :data:`SIMPLEITK_SUFFIXES`, and ``.mhd`` /
+    NRRD files whose data is compressed or inside the header.
 
     Args:
         path: header file; raw data files are resolved beside it.
@@ -109,9 +153,17 @@ def load_volume(path: str) -> tuple[np.ndarray, np.ndarray]:
     if not os.path.exists(path):
         raise ValueError(f"path: volume header {path!r} not found")
     d = os.path.dirname(path)
-    ext = os.path.splitext(path)[1].lower()
+    ext = volume_suffix(path)
+    if ext == ".vtk":
+        return load_vtk_structured_points(path)
+    if ext in SIMPLEITK_SUFFIXES:
+        return load_with_simpleitk(path)
     if ext == ".mhd":
         h = _read_header(path)
+        if h.get("elementdatafile", "").upper() == "LOCAL" or (
+            h.get("compresseddata", "false").lower() == "true"
+        ):
+            return load_with_simpleitk(path)
         try:
             dims = [int(x) for x in h["dimsize"].split()]
             dtype = np.dtype(_MET_TYPES[h["elementtype"]])
@@ -133,13 +185,11 @@ def load_volume(path: str) -> tuple[np.ndarray, np.ndarray]:
             dtype = np.dtype(_NRRD_TYPES[h["type"]])
         except KeyError as e:
             raise ValueError(f"path: NRRD header {path!r} lacks or misuses {e}") from None
-        if h.get("encoding", "raw") != "raw":
-            raise ValueError(f"path: only raw NRRD encoding is supported, got {h['encoding']}")
-        dtype = dtype.newbyteorder(">" if h.get("endian", "little") == "big" else "<")
-        spacing = [float(x) for x in h.get("spacings", "1 1 1").split()]
         spec = h.get("data file", h.get("datafile"))
-        if spec is None:
-            raise ValueError("path: attached NRRD data is not supported; use a detached header")
+        if h.get("encoding", "raw") != "raw" or spec is None:
+            return load_with_simpleitk(path)  # compressed or attached data
+        dtype = dtype.newbyteorder(">" if h.get("endian", "little") == "big" else "<")
+        spacing = _nrrd_spacing(h, path)
         parts = spec.split()
         if "%" in parts[0] and len(parts) >= 4:
             lo, hi, step = int(parts[1]), int(parts[2]), int(parts[3])
@@ -147,35 +197,63 @@ def load_volume(path: str) -> tuple[np.ndarray, np.ndarray]:
         else:
             files = [os.path.join(d, parts[0])]
     else:
-        raise ValueError(f"path: unknown volume header extension {ext!r} (want .mhd or .nhdr)")
+        raise ValueError(
+            f"path: unknown volume extension of {os.path.basename(path)!r} (want "
+            f"{', '.join(VOLUME_SUFFIXES)}, or with jaxgfx[volumes] "
+            f"{', '.join(SIMPLEITK_SUFFIXES)})"
+        )
     if len(dims) != 3:
         raise ValueError(f"path: volume must be 3-D, header gives dims {dims}")
     vol = _read_raw(files, dims, dtype, "path")
     return vol.astype(dtype.newbyteorder("=")), np.asarray(spacing[:3], np.float64)
 
 
-def volume_to_voxels(volume, iso: float, *, up_axis: int = 1) -> Voxels:
+def volume_to_voxels(
+    volume,
+    iso: float | None = None,
+    *,
+    up_axis: int | str = 1,
+    spacing=None,
+    resolution: int | None = None,
+) -> Voxels:
     """Thresholds a scanned volume at an iso value and keeps its surface (4.3.2).
 
-    Voxels with ``value >= iso`` are solid.  The colour is a gradient over the
-    value above the iso level (dark brown to light green, as the thesis does to
-    emphasize leaves in the bonsai).
+    With ``spacing`` (or ``resolution``) the volume is first resampled to cubic
+    voxels (:func:`~jaxgfx._src.voxel.volume.resample_isotropic`: trilinear, the voxel
+    edge is the finest spacing, or the longest physical axis split into
+    ``resolution`` voxels), so a scan keeps its proportions.  Voxels with
+    ``value >= iso`` are solid.  The colour is a gradient over the value above the
+    iso level (dark brown to light green, as the thesis does to emphasize leaves in
+    the bonsai).
 
     Args:
         volume: (X, Y, Z) scalar volume.
-        iso: threshold, strictly inside the data range.
-        up_axis: which volume axis becomes world y.
+        iso: threshold, strictly inside the data range; None: Otsu's threshold of
+            the volume's values (:func:`~jaxgfx._src.voxel.volume.otsu_threshold`,
+            the boundary between air and the scanned object).
+        up_axis: which volume axis becomes world +y: 0, 1, 2 (x, y, z) or one of
+            ``'x'``, ``'y'``, ``'z'``, ``'-x'``, ``'-y'``, ``'-z'``; the volume is
+            rotated (not mirrored), e.g. z up maps ``(x, y, z)`` to ``(x, z, -y)``
+            (:func:`~jaxgfx._src.voxel.volume.turn_up`).
+        spacing: optional (3,) sample spacing per volume axis (before ``up_axis``).
+        resolution: optional voxel count of the longest physical axis.
+
+    Returns:
+        The surface :class:`Voxels`; the grid is the volume's (resampled) grid with
+        ``up_axis`` turned to y.
     """
     vol = np.asarray(volume)
     if vol.ndim != 3:
         raise ValueError(f"volume must be 3-D, got shape {vol.shape}")
-    if up_axis not in (0, 1, 2):
-        raise ValueError(f"up_axis must be 0, 1 or 2, got {up_axis}")
+    turn_up(np.empty((1, 1, 1)), up_axis)  # checks up_axis before any work
     lo, hi = float(vol.min()), float(vol.max())
+    if iso is None:
+        iso = otsu_threshold(vol)
     if not (np.isfinite(iso) and lo < iso <= hi):
         raise ValueError(f"iso {iso} outside the data range ({lo}, {hi}]")
-    order = {0: (1, 0, 2), 1: (0, 1, 2), 2: (0, 2, 1)}[up_axis]
-    vol = np.transpose(vol, order)
+    if spacing is not None or resolution is not None:
+        vol = resample_isotropic(vol, np.ones(3) if spacing is None else spacing, resolution)
+    vol = turn_up(vol, up_axis)
     occ = vol >= iso
     t = np.clip((vol.astype(np.float64) - iso) / max(hi - iso, 1e-12), 0, 1)[..., None]
     c0 = np.array([90, 60, 30], np.float64)

@@ -12,12 +12,11 @@ from jaxgfx._src.voxel.voxset import (
     surface_voxels,
 )
 
-__all__ = ["voxelize_mesh"]
+__all__ = ["CLAY", "voxelize_mesh"]
 
-
-def _normal_colors(normals: np.ndarray) -> np.ndarray:
-    n = normals / np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    return np.clip(np.round(127.5 + 127.0 * n), 0, 255).astype(np.uint8)
+CLAY = (196, 178, 156)
+"""The material colour of a mesh without vertex colours: a neutral light clay, bright
+enough that the lit render shows the shape (RGB, uint8)."""
 
 
 def voxelize_mesh(
@@ -26,6 +25,7 @@ def voxelize_mesh(
     resolution: int,
     *,
     vertex_colors=None,
+    color=CLAY,
     samples_factor: float = 8.0,
     chunk_points: int = 1 << 22,
 ) -> Voxels:
@@ -41,8 +41,10 @@ def voxelize_mesh(
         vertices: (V, 3) float positions, y up.
         faces: (F, 3) int triangle indices.
         resolution: grid size of the longest axis, > 0.
-        vertex_colors: optional (V, 3) or (V, 4) uint8 colours, interpolated;
-            without them a voxel's colour encodes its triangle's normal.
+        vertex_colors: optional (V, 3) or (V, 4) uint8 colours, interpolated.
+        color: (3,) uint8 material colour of every voxel when ``vertex_colors``
+            is None (default :data:`CLAY`); the shape comes from lighting the
+            render (:func:`jaxgfx.post.shade_voxels`).
         samples_factor: the factor of Eq. 4.1.
         chunk_points: sample points processed at once (memory bound).
 
@@ -75,8 +77,9 @@ def voxelize_mesh(
             raise ValueError(f"vertex_colors must have shape (V, 3|4), got {vc.shape}")
         vc = vc[:, :3].astype(np.float64)
     else:
-        fn = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
-        face_col = _normal_colors(fn).astype(np.float64)
+        material = np.asarray(color, np.float64)
+        if material.shape != (3,) or not np.all((material >= 0) & (material <= 255)):
+            raise ValueError(f"color must be three values in [0, 255], got {color!r}")
     p1, p2, p3 = p[f[:, 0]], p[f[:, 1]], p[f[:, 2]]
     length = np.maximum(np.linalg.norm(p2 - p1, axis=1), np.linalg.norm(p3 - p1, axis=1))
     samples = np.maximum(1, np.ceil(samples_factor * length)).astype(np.int64)  # Eq. 4.1
@@ -105,7 +108,7 @@ def voxelize_mesh(
             ww2, ww3 = w2[first_idx], w3[first_idx]
             col = (1 - ww2 - ww3) * vc[f[ti, 0]] + ww2 * vc[f[ti, 1]] + ww3 * vc[f[ti, 2]]
         else:
-            col = face_col[tri[first_idx]]
+            col = np.broadcast_to(material, (len(key), 3))
         all_keys.append(key)
         all_cols.append(np.clip(np.round(col), 0, 255).astype(np.uint8))
         start = stop
