@@ -344,17 +344,6 @@ class Demo(NamedTuple):
     credits: tuple
 
 
-def _terrain_colors(v: np.ndarray, n: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    t = np.clip((v[:, 1] - lo) / max(hi - lo, 1e-6), 0.0, 1.0)[:, None]
-    steep = np.clip((0.85 - np.abs(n[:, 1:2])) / 0.35, 0.0, 1.0)
-    grass = np.array([0.36, 0.47, 0.22]) * (1 - t) + np.array([0.55, 0.52, 0.40]) * t
-    rock = np.array([0.45, 0.42, 0.40])
-    snow = np.array([0.93, 0.94, 0.97])
-    c = grass * (1 - steep) + rock * steep
-    s = np.clip((t - 0.8) / 0.1, 0.0, 1.0) * (1 - steep)
-    return (c * (1 - s) + snow * s).astype(np.float32)
-
-
 def _terrain_pass(levels, lo: float, hi: float) -> MeshPass:
     v, n, f, _ = terrain.level_arrays(levels, (0, 0, 0))
     if f.shape[0] == 0:
@@ -362,7 +351,7 @@ def _terrain_pass(levels, lo: float, hi: float) -> MeshPass:
     return MeshPass(
         jnp.asarray(v, jnp.float32),
         jnp.asarray(f, jnp.int32),
-        jnp.asarray(_terrain_colors(v, n, lo, hi)),
+        terrain.terrain_colors(v, n, height_range=(lo, hi)),
         jnp.asarray(n, jnp.float32),
     )
 
@@ -439,7 +428,12 @@ def build_demo(
     places = places + [ch_place]
     render = jax.jit(render_mesh_pass)
     passes = [
-        ("background pass (sky)", jax.jit(background), (cam,), None),
+        (
+            "background pass (sky)",
+            jax.jit(lambda c: background(c, terrain.SKY_HORIZON, terrain.SKY_ZENITH)),
+            (cam,),
+            None,
+        ),
         (
             f"terrain generation ({levels} Clip-Boxes of {size}^3)",
             generate_terrain,
@@ -465,7 +459,9 @@ def build_demo(
         f"{int(terrain_pass.faces.shape[0])} triangles; static objects: {obj_desc}; "
         f"character: {ch_desc}"
     )
-    comp = jax.jit(lambda fs: fog(composite(fs), density=4.0 / (size * (1 << levels))))
+    comp = jax.jit(
+        lambda fs: fog(composite(fs), terrain.SKY_HORIZON, density=4.0 / (size * (1 << levels)))
+    )
     credits = tuple(
         c
         for c, used in (

@@ -102,6 +102,8 @@ from jaxgfx._src.terrain.sampling import as_terrain as as_terrain
 from jaxgfx._src.terrain.sampling import check_terrain as check_terrain
 from jaxgfx._src.terrain.sampling import check_viewer as check_viewer
 from jaxgfx._src.terrain.sampling import sample_terrain as sample_terrain
+from jaxgfx._src.terrain.shading import SKY_HORIZON as SKY_HORIZON
+from jaxgfx._src.terrain.shading import SKY_ZENITH as SKY_ZENITH
 from jaxgfx._src.terrain.shading import render_terrain as render_terrain
 from jaxgfx._src.terrain.shading import terrain_colors as terrain_colors
 from jaxgfx._src.terrain.worker import GeometryWorker as GeometryWorker
@@ -169,6 +171,8 @@ __all__ = [
     "render_levels",
     "mesh_to_trimesh",
     # shading by slope and height, fog, sky
+    "SKY_HORIZON",
+    "SKY_ZENITH",
     "terrain_colors",
     "render_terrain",
     # 3.3.1, 3.5.4 driver and geometry thread
