@@ -225,7 +225,7 @@ def run(args) -> int:
         levels,
         viewer,
         height_range=heights,
-        fog_distance=float(reach),
+        fog_distance=float(args.fog * reach) if args.fog > 0 else None,
         snow_line=_snow_line(args),
         rasterize_fn=jax.jit(rasterize),
     )
@@ -333,5 +333,12 @@ def register(subparsers) -> None:
         default="auto",
         help="snow above this fraction of the height range, 'none' or 'auto' "
         "(default: 0.8; none for image heightmaps, which carry no altitude)",
+    )
+    p.add_argument(
+        "--fog",
+        type=bounded_float(0.0, math.inf),
+        default=1.0,
+        help="fog distance in outer-box half-widths (1: the box edge fades into the "
+        "horizon; 0: no fog, e.g. for views from above)",
     )
     p.set_defaults(func=run)

@@ -30,8 +30,8 @@ SKY_ZENITH = (0.32, 0.52, 0.82)
 
 _GRASS = (0.29, 0.40, 0.17)
 _EARTH = (0.50, 0.44, 0.31)
-_ROCK = (0.47, 0.43, 0.40)
-_ROCK_BAND = (0.58, 0.40, 0.29)  # iron-red strata alternate with grey rock
+_ROCK = (0.50, 0.44, 0.39)
+_ROCK_BAND = (0.68, 0.40, 0.25)  # iron-red strata alternate with grey rock
 _SNOW = (0.86, 0.88, 0.92)
 
 
@@ -108,7 +108,7 @@ def terrain_colors(
     col = lambda c: jnp.asarray(c, _F32)  # noqa: E731
     soil = col(_GRASS) + (col(_EARTH) - col(_GRASS)) * _smoothstep(0.2, 0.7, t)[:, None]
     band = 0.5 + 0.5 * jnp.sin(v[:, 1] * 0.45 + 2.0 * d)
-    rock = col(_ROCK) + (col(_ROCK_BAND) - col(_ROCK)) * (0.6 * band)[:, None]
+    rock = col(_ROCK) + (col(_ROCK_BAND) - col(_ROCK)) * (0.8 * band)[:, None]
     c = soil + (rock - soil) * _smoothstep(r0, r1, slope)[:, None]
     if snow_line is not None:
         flat = 1.0 - _smoothstep(0.3, 0.55, slope)
@@ -124,7 +124,7 @@ def render_terrain(
     anchor,
     *,
     height_range: tuple[float, float],
-    fog_distance: float,
+    fog_distance: float | None,
     light_dir=(0.5, 0.75, 0.35),
     snow_line: float | None = 0.8,
     rasterize_fn=None,
@@ -137,7 +137,7 @@ def render_terrain(
         anchor: (3,) integer world position the camera and vertices are relative to.
         height_range: (low, high) WORLD y for the colour bands.
         fog_distance: camera depth (voxels) where the fog reaches 95 %; the outer box's
-            half-width hides the box edge in the sky's horizon colour.
+            half-width hides the box edge in the sky's horizon colour.  None: no fog.
         light_dir: direction towards the sun.
         snow_line: as in :func:`terrain_colors`.
         rasterize_fn: a jitted ``jaxgfx.raster.rasterize`` (default: jit it here).
@@ -148,9 +148,10 @@ def render_terrain(
     from jaxgfx.compose import Frame, background
     from jaxgfx.raster import rasterize
 
-    fog_distance = check_float("fog_distance", fog_distance)
-    if fog_distance <= 0:
-        raise ValueError(f"fog_distance must be > 0, got {fog_distance}")
+    if fog_distance is not None:
+        fog_distance = check_float("fog_distance", fog_distance)
+        if fog_distance <= 0:
+            raise ValueError(f"fog_distance must be > 0 or None, got {fog_distance}")
     anchor = np.asarray(anchor, np.int64)
     v, n, f, _ = level_arrays(levels, anchor)
     if f.shape[0] == 0:
@@ -168,12 +169,15 @@ def render_terrain(
     light = light / jnp.linalg.norm(light)
     sun = jnp.maximum(jnp.sum(nrm * light, -1, keepdims=True), 0.0)
     sky = 0.5 + 0.5 * nrm[..., 1:2]  # hemisphere light: facing up sees more sky
-    lit = albedo * (0.8 * sun + 0.3 * sky)
+    lit = albedo * (0.7 * sun + 0.45 * sky)
     horizon = jnp.asarray(SKY_HORIZON, _F32)
     hit = jnp.isfinite(out.depth)
-    z = jnp.where(hit, out.depth, 0.0) / fog_distance
-    k = (1.0 - jnp.exp(-3.0 * z * z * z))[..., None]  # clear near, 95 % at fog_distance
-    color = lit * (1.0 - k) + horizon * k
+    if fog_distance is None:
+        color = lit
+    else:
+        z = jnp.where(hit, out.depth, 0.0) / fog_distance
+        k = (1.0 - jnp.exp(-3.0 * z * z * z))[..., None]  # clear near, 95 % at fog_distance
+        color = lit * (1.0 - k) + horizon * k
     # below the horizon, where no box reaches, the "ground" is the fog colour too
     sky_frame = background(cam, horizon=SKY_HORIZON, zenith=SKY_ZENITH, ground=SKY_HORIZON)
     return Frame(jnp.where(hit[..., None], color, sky_frame.color), out.depth)
