@@ -11,7 +11,7 @@ of it; the terrain/sky mask agreement; and the signed depth difference by depth 
 edge while the Clip-Box terrain goes on (clamped edges), so views that see past the edge
 lose mask agreement there.
 
-    python -m experiments.heightmap_reference --out out/heightmap_reference [--size 320x240]
+    python -m experiments.heightmap_reference --out out/heightmap_reference [--size 320x240] [--quick]
 """
 
 from __future__ import annotations
@@ -106,19 +106,22 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", default="out/heightmap_reference", help="output folder")
     p.add_argument("--size", default="320x240", help="WxH of every render")
+    p.add_argument("--quick", action="store_true", help="one map, two views, 160x120")
     args = p.parse_args(argv)
-    size = tuple(int(v) for v in args.size.lower().split("x"))
+    size = (160, 120) if args.quick else tuple(int(v) for v in args.size.lower().split("x"))
+    maps = MAPS[:1] if args.quick else MAPS
+    views = {k: VIEWS[k] for k in ("default", "low")} if args.quick else VIEWS
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    for name in MAPS:
+    for name in maps:
         path = DATA / "terrain" / name
         if not path.exists():
             print(f"skipping {name}: {path} is absent (../shared/data)", file=sys.stderr)
             continue
         t = T.heightmap_terrain(path)
         top = int(np.max(np.asarray(t.heights)) + t.mapping.base)
-        for view, extra in VIEWS.items():
+        for view, extra in views.items():
             extra = [e.format(low=top // 2 + 40, high=top + 60) for e in extra]
             rows.append(run_view(path, view, extra, size, out_dir))
             print(json.dumps(rows[-1]))
