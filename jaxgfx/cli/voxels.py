@@ -20,6 +20,7 @@ from jaxgfx.cli.args import (
     check_image,
     check_memory,
     check_out_file,
+    memory_limit,
     nonnegative_int,
     parse_aa,
     parse_floats,
@@ -90,8 +91,14 @@ def load_input(
         vol, spacing = V.load_volume(str(p))
         shape = V.isotropic_shape(vol.shape, spacing, resolution)
         # Resampling holds the float32 volume and its colours: about 8 bytes a voxel.
-        option = "--resolution" if resolution is not None else "input"
-        check_memory(option, "x".join(map(str, shape)), math.prod(shape) * VOXEL_BYTES)
+        need = math.prod(shape) * VOXEL_BYTES
+        if resolution is None and need > memory_limit():
+            raise CliError(
+                f"input {path}: its spacing {tuple(float(s) for s in spacing)} makes "
+                f"{'x'.join(map(str, shape))} cubic voxels (about {need / 2**30:.1f} GiB, more "
+                "than half the physical memory); pass --resolution N for fewer"
+            )
+        check_memory("--resolution", str(resolution), need)
         if iso is not None:
             lo, hi = float(vol.min()), float(vol.max())
             if not lo < iso <= hi:
