@@ -492,6 +492,8 @@ def test_iron_protein_loads(data_dir, tmp_path):
 
 
 def test_cli_volumes(tmp_path, capsys):
+    import json
+
     from jaxgfx.cli import main
 
     vol = _sphere((16, 16, 8), (1, 1, 2), 6.0)
@@ -506,6 +508,8 @@ def test_cli_volumes(tmp_path, capsys):
     assert main(["voxelize", str(hdr), "--out", str(out)]) == 0
     vox = V.load_scene(out)
     assert vox.shape == (16, 16, 16)
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["spacing"] == [1, 1, 2] and 10 < line["iso"] <= 200  # Otsu, between the values
     # --up=-z turns the scan the other way round about x: y and z reversed.
     assert main(["voxelize", str(hdr), "--up=-z", "--out", str(tmp_path / "down.npz")]) == 0
     down = V.voxels_to_dense(V.load_scene(tmp_path / "down.npz"))[0]
