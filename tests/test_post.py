@@ -75,6 +75,9 @@ def test_ao_and_shade_finite():
     n = post.screen_space_normals(cam, d, key=jax.random.key(2))
     img = post.shade(jnp.full((H, W, 3), 0.8), n, ao)
     assert img.shape == (H, W, 3) and np.all(np.isfinite(np.asarray(img)))
+    # The block stands 2 in front: it occludes within a gap of 3, not within 1.
+    assert float(post.ambient_occlusion(d, key=jax.random.key(1), max_gap=3.0)[15, 22]) < 1.0
+    assert float(post.ambient_occlusion(d, key=jax.random.key(1), max_gap=1.0)[15, 22]) == 1.0
     # vmap over frames agrees with single frames.
     batch = jax.vmap(lambda x: post.ambient_occlusion(x, key=jax.random.key(1)))(jnp.stack([d, d]))
     np.testing.assert_allclose(batch[1], ao)

@@ -477,15 +477,23 @@ def test_simpleitk_formats(tmp_path):
         np.testing.assert_allclose(spacing, [0.5, 1.0, 2.0])
 
 
-def test_iron_protein_loads(data_dir):
+def test_iron_protein_loads(data_dir, tmp_path):
     vol, spacing = V.load_volume(data_dir / "volumes" / "ironProt.vtk")
     assert vol.shape == (68, 68, 68) and vol.dtype == np.uint8
     np.testing.assert_allclose(spacing, [1, 1, 1])
     vox = V.volume_to_voxels(vol, spacing=spacing, up_axis=2)
     assert vox.shape == (68, 68, 68) and len(vox.coords) > 1000
+    # Through the command line (refused before this session: "--resolution is required").
+    from jaxgfx.cli import main
+
+    out = tmp_path / "iron.npz"
+    assert main(["voxelize", str(data_dir / "volumes" / "ironProt.vtk"), "--out", str(out)]) == 0
+    assert V.load_scene(out).shape == (68, 68, 68)
 
 
 def test_cli_volumes(tmp_path, capsys):
+    import json
+
     from jaxgfx.cli import main
 
     vol = _sphere((16, 16, 8), (1, 1, 2), 6.0)
@@ -500,6 +508,8 @@ def test_cli_volumes(tmp_path, capsys):
     assert main(["voxelize", str(hdr), "--out", str(out)]) == 0
     vox = V.load_scene(out)
     assert vox.shape == (16, 16, 16)
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["spacing"] == [1, 1, 2] and 10 < line["iso"] <= 200  # Otsu, between the values
     # --up=-z turns the scan the other way round about x: y and z reversed.
     assert main(["voxelize", str(hdr), "--up=-z", "--out", str(tmp_path / "down.npz")]) == 0
     down = V.voxels_to_dense(V.load_scene(tmp_path / "down.npz"))[0]
@@ -512,6 +522,13 @@ def test_cli_volumes(tmp_path, capsys):
     assert "error: --iso 1000" in capsys.readouterr().err
     assert main(["voxelize", str(tmp_path / "v.vtk"), "--out", str(out)]) == 2
     assert "not found" in capsys.readouterr().err
+    # A spacing so uneven that cubic voxels would not fit: refused before resampling.
+    (tmp_path / "thin.mhd").write_text(
+        "NDims = 3\nDimSize = 16 16 8\nElementSpacing = 1 1 1e-5\nElementType = MET_UCHAR\n"
+        "ElementDataFile = v.raw\n"
+    )
+    assert main(["voxelize", str(tmp_path / "thin.mhd"), "--out", str(out)]) == 2
+    assert "pass --resolution N for fewer" in capsys.readouterr().err
     assert main(["voxelize", "tree", "--resolution", "8", "--up", "z", "--out", str(out)]) == 2
     assert "error: --up applies to meshes and volumes" in capsys.readouterr().err
     assert main(["voxelize", "m.ply", "--resolution", "8", "--up=-z", "--out", str(out)]) == 2

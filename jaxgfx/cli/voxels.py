@@ -20,6 +20,7 @@ from jaxgfx.cli.args import (
     check_image,
     check_memory,
     check_out_file,
+    memory_limit,
     nonnegative_int,
     parse_aa,
     parse_floats,
@@ -57,7 +58,12 @@ def check_levels(levels: int, grid: int, what: str) -> None:
 
 
 def load_input(
-    path: str, resolution: int | None, iso: float | None, seed: int = 0, up: str | None = None
+    path: str,
+    resolution: int | None,
+    iso: float | None,
+    seed: int = 0,
+    up: str | None = None,
+    report: dict | None = None,
 ):
     """Reads any supported input as surface :class:`~jaxgfx.raycast.Voxels`.
 
@@ -66,7 +72,8 @@ def load_input(
     spacing, or the longest physical axis split into ``resolution`` voxels; the
     iso value defaults to Otsu's threshold.  Meshes without vertex colours get one
     clay colour.  ``up`` is the file's up axis (meshes: x, y or z, default y;
-    volumes: also -x, -y, -z, default z, the slice axis of a scan).
+    volumes: also -x, -y, -z, default z, the slice axis of a scan).  For a volume,
+    ``report`` (a dict) receives the ``iso`` value used and the file's ``spacing``.
     """
     import jax
     import numpy as np
@@ -90,12 +97,22 @@ def load_input(
         vol, spacing = V.load_volume(str(p))
         shape = V.isotropic_shape(vol.shape, spacing, resolution)
         # Resampling holds the float32 volume and its colours: about 8 bytes a voxel.
-        option = "--resolution" if resolution is not None else "input"
-        check_memory(option, "x".join(map(str, shape)), math.prod(shape) * VOXEL_BYTES)
+        need = math.prod(shape) * VOXEL_BYTES
+        if resolution is None and need > memory_limit():
+            raise CliError(
+                f"input {path}: its spacing {tuple(float(s) for s in spacing)} makes "
+                f"{'x'.join(map(str, shape))} cubic voxels (about {need / 2**30:.1f} GiB, more "
+                "than half the physical memory); pass --resolution N for fewer"
+            )
+        check_memory("--resolution", str(resolution), need)
         if iso is not None:
             lo, hi = float(vol.min()), float(vol.max())
             if not lo < iso <= hi:
                 raise CliError(f"--iso {iso} is outside the volume's range ({lo}, {hi}]")
+        if iso is None:
+            iso = V.otsu_threshold(vol)
+        if report is not None:
+            report.update(iso=round(float(iso), 4), spacing=[float(v) for v in spacing])
         # By default volume z (the slice axis of a scan) becomes world y.
         return V.volume_to_voxels(
             vol, iso, up_axis=up or "z", spacing=spacing, resolution=resolution
@@ -125,7 +142,8 @@ def run_voxelize(args) -> int:
     from jaxgfx import raycast as V
 
     t0 = time.perf_counter()
-    vox = load_input(args.input, args.resolution, args.iso, args.seed, args.up)
+    volume: dict = {}
+    vox = load_input(args.input, args.resolution, args.iso, args.seed, args.up, volume)
     check_levels(args.levels, max(vox.shape), "largest grid axis")
     rle = V.encode_rle(vox, levels=args.levels)
     st = V.rle_stats(rle)
@@ -143,6 +161,7 @@ def run_voxelize(args) -> int:
         bits_per_voxel=round(st["bits_per_voxel"], 3),
         seconds=round(time.perf_counter() - t0, 3),
         out=str(args.out),
+        **volume,
     )
     print(json.dumps(line))
     return 0
