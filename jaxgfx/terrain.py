@@ -39,9 +39,10 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
     :func:`pattern_filter`, :func:`smooth_mesh`, :func:`mesh_normals`,
     :func:`subdivide_mesh` (:class:`SubdividedMesh`).
 3.4.5 / 3.5.3 Drawing the levels (Fig. 3.1 thread 2), ``display.py``:
-    :func:`level_views`, :func:`level_arrays`, :func:`render_levels`, :func:`mesh_to_trimesh`.
+    :func:`level_views`, :func:`level_arrays`, :func:`render_levels`,
+    :func:`weld_mesh` (the levels as one surface), :func:`mesh_to_trimesh`.
 3.5.2 Shading by slope and height, fog, sky (the HVOX terrain shader), ``shading.py``:
-    :func:`terrain_colors`, :func:`render_terrain`.
+    :func:`terrain_colors`, :func:`render_terrain`, ``SKY_HORIZON``, ``SKY_ZENITH``.
 3.3.1 / 3.4.6 The update driver (Fig. 3.1 thread 1), ``pipeline.py``:
     :class:`ClipBoxPipeline`.
 3.5.4 Concurrent generation and visualization (Fig. 3.1), ``worker.py``:
@@ -69,6 +70,7 @@ from jaxgfx._src.terrain.display import level_arrays as level_arrays
 from jaxgfx._src.terrain.display import level_views as level_views
 from jaxgfx._src.terrain.display import mesh_to_trimesh as mesh_to_trimesh
 from jaxgfx._src.terrain.display import render_levels as render_levels
+from jaxgfx._src.terrain.display import weld_mesh as weld_mesh
 from jaxgfx._src.terrain.functions import Difference as Difference
 from jaxgfx._src.terrain.functions import FunctionTerrain as FunctionTerrain
 from jaxgfx._src.terrain.functions import Intersection as Intersection
@@ -170,6 +172,7 @@ __all__ = [
     "level_arrays",
     "render_levels",
     "mesh_to_trimesh",
+    "weld_mesh",
     # shading by slope and height, fog, sky
     "SKY_HORIZON",
     "SKY_ZENITH",

@@ -299,7 +299,11 @@ def register(subparsers) -> None:
     p.add_argument(
         "--fov", type=parse_fov, default=60.0, help="vertical field of view, degrees in (0, 180)"
     )
-    p.add_argument("--mesh", default=None, help=f"export the mesh ({', '.join(MESH_SUFFIXES)})")
+    p.add_argument(
+        "--mesh",
+        default=None,
+        help=f"export the mesh, the levels welded into one surface ({', '.join(MESH_SUFFIXES)})",
+    )
     p.add_argument(
         "--mesh-level",
         type=nonnegative_int,
