@@ -18,7 +18,8 @@ A reader's table of contents: thesis section -> function (implementation in
     :data:`DRAW_BITS`, :data:`MAX_SKIP`, :data:`MAX_DRAW`, :func:`pack_element`,
     :func:`unpack_element` (``codec``); the pointer map and columns (Fig. 4.11):
     :class:`RLEVolume`, :func:`encode_rle`, :func:`decode_rle`, :func:`rle_stats`
-    (Tables 4.1, 4.2), :func:`place_instances` (shared columns), :func:`as_jax`, and
+    (Tables 4.1, 4.2), :func:`place_instances` (shared columns on a tile grid),
+    :func:`share_columns` (copies at any position share their column tails), :func:`as_jax`, and
     :func:`empty_space_distance` (not in the thesis) (``encode``).
 4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)``.
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
@@ -63,6 +64,7 @@ from jaxgfx._src.voxel.encode import empty_space_distance as empty_space_distanc
 from jaxgfx._src.voxel.encode import encode_rle as encode_rle
 from jaxgfx._src.voxel.encode import place_instances as place_instances
 from jaxgfx._src.voxel.encode import rle_stats as rle_stats
+from jaxgfx._src.voxel.encode import share_columns as share_columns
 from jaxgfx._src.voxel.formats import load_kv6 as load_kv6
 from jaxgfx._src.voxel.formats import load_scene as load_scene
 from jaxgfx._src.voxel.formats import load_volume as load_volume
@@ -142,6 +144,7 @@ __all__ = [
     "decode_rle",
     "rle_stats",
     "place_instances",
+    "share_columns",
     "empty_space_distance",
     "as_jax",
     "downsample_voxels",

@@ -586,3 +586,24 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
             "--size", "8x8", "--out", str(png)]  # fmt: skip
     assert main(argv) == 2
     assert "inside a solid voxel" in capsys.readouterr().err
+
+
+def test_share_columns_stores_copies_once():
+    rng = np.random.default_rng(5)
+    obj = _random_voxels(rng, (4, 6, 4), 40)
+    # Three copies at different heights and positions (no common tile grid or base).
+    offs = [(0, 0, 0), (6, 4, 2), (10, 8, 6)]  # even: the mip levels match too
+    vox = V.make_voxels(
+        np.concatenate([obj.coords + o for o in offs]),
+        np.concatenate([obj.colors] * 3),
+        (14, 14, 11),
+    )
+    rle = V.encode_rle(vox, levels=2)
+    shared = V.share_columns(rle)
+    for level in range(2):
+        _same(V.decode_rle(shared, level), V.decode_rle(rle, level))
+    a, b = V.rle_stats(rle), V.rle_stats(shared)
+    assert b["rle_elements"] == a["rle_elements"]  # the same columns ...
+    assert len(shared.colors) < 0.5 * len(rle.colors)  # ... stored once
+    assert b["bytes_with_color"] < a["bytes_with_color"]
+    np.testing.assert_array_equal(shared.first, rle.first)

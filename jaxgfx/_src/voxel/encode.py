@@ -30,6 +30,7 @@ __all__ = [
     "decode_rle",
     "rle_stats",
     "place_instances",
+    "share_columns",
     "as_jax",
 ]
 
@@ -375,6 +376,62 @@ def place_instances(rle: RLEVolume, tiles, grid) -> RLEVolume:
         empty_dist=_empty_distances(rle.count, rle.level_shapes, rle.level_offsets, True),
         shape=(TX * X, Y, TZ * Z),
         voxel_counts=tuple(int(n) * len(t) for n in rle.voxel_counts),
+    )
+
+
+def share_columns(rle: RLEVolume) -> RLEVolume:
+    """Stores every distinct column tail once: instancing through the pointer map (4.4.6).
+
+    The first element of a column is inline in the pointer map and holds the empty run
+    above the column's top; the rest of the column is reached through ``ptr`` and its
+    colours through ``color_ptr``.  Copies of one object standing at different heights
+    (a forest on a slope) therefore differ only in their inline first elements: their
+    remaining elements and colours are equal and are stored once here, with every copy's
+    pointers aimed at the shared runs.  The renderer and :func:`decode_rle` read columns
+    only through these pointers, so every frame stays bit-identical; :func:`rle_stats`
+    counts the buffers as stored.  Unlike :func:`place_instances` the copies need no
+    common tile grid or base height.
+
+    Args:
+        rle: an encoded volume (NumPy or JAX buffers).
+
+    Returns:
+        The same volume with deduplicated ``elements`` and ``colors`` (NumPy buffers).
+    """
+    count = np.asarray(rle.count, np.int64)
+    ptr = np.asarray(rle.ptr, np.int64)
+    cptr = np.asarray(rle.color_ptr, np.int64)
+    first = np.asarray(rle.first)
+    elements = np.asarray(rle.elements)
+    colors = np.asarray(rle.colors)
+    _, draw_first = unpack_element(first.astype(np.int64))
+    new_ptr, new_cptr = ptr.copy(), cptr.copy()
+    els, cols, seen = [], [], {}
+    n_el = n_col = 0
+    for c in np.flatnonzero(count):
+        tail = elements[ptr[c] : ptr[c] + count[c] - 1]
+        _, d = unpack_element(tail.astype(np.int64))
+        ndraw = int(draw_first[c] + d.sum())
+        rgb = colors[cptr[c] : cptr[c] + ndraw]
+        key = (tail.tobytes(), rgb.tobytes())
+        hit = seen.get(key)
+        if hit is None:
+            hit = seen[key] = (n_el, n_col)
+            els.append(tail)
+            cols.append(rgb)
+            n_el += len(tail)
+            n_col += ndraw
+        new_ptr[c], new_cptr[c] = hit
+    return dataclasses.replace(
+        rle,
+        ptr=new_ptr.astype(np.uint32),
+        color_ptr=new_cptr.astype(np.uint32),
+        elements=np.concatenate(els).astype(np.uint16) if n_el else np.zeros(1, np.uint16),
+        colors=np.concatenate(cols).astype(np.uint8) if n_col else np.zeros((1, 3), np.uint8),
+        first=first,
+        count=np.asarray(rle.count),
+        tiles=np.asarray(rle.tiles),
+        empty_dist=np.asarray(rle.empty_dist),
     )
 
 
