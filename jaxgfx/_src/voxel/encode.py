@@ -406,7 +406,9 @@ def share_columns(rle: RLEVolume) -> RLEVolume:
     colors = np.asarray(rle.colors)
     _, draw_first = unpack_element(first.astype(np.int64))
     new_ptr, new_cptr = ptr.copy(), cptr.copy()
-    els, cols, seen = [], [], {}
+    els: list[np.ndarray] = []
+    cols: list[np.ndarray] = []
+    seen: dict[tuple[bytes, bytes], tuple[int, int]] = {}
     n_el = n_col = 0
     for c in np.flatnonzero(count):
         tail = elements[ptr[c] : ptr[c] + count[c] - 1]
