@@ -36,7 +36,7 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
 3.4.5 Seams between levels (Fig. 3.6-3.7), ``meshing.py``:
     :func:`seam_occupancy`, :func:`weld_seam`, :func:`visible_faces`.
 3.4.7 Geometry post-processing (Fig. 3.9, 3.12-3.14, Table 3.1), ``postprocess.py``:
-    :func:`pattern_filter`, :func:`smooth_mesh`, :func:`mesh_normals`,
+    :func:`pattern_filter`, :func:`smooth_mesh`, :func:`mesh_normals`, :func:`blend_seam`,
     :func:`subdivide_mesh` (:class:`SubdividedMesh`).
 3.4.5 / 3.5.3 Drawing the levels (Fig. 3.1 thread 2), ``display.py``:
     :func:`level_views`, :func:`level_arrays`, :func:`render_levels`,
@@ -96,6 +96,7 @@ from jaxgfx._src.terrain.meshing import voxels_to_mesh as voxels_to_mesh
 from jaxgfx._src.terrain.meshing import weld_seam as weld_seam
 from jaxgfx._src.terrain.pipeline import ClipBoxPipeline as ClipBoxPipeline
 from jaxgfx._src.terrain.postprocess import SubdividedMesh as SubdividedMesh
+from jaxgfx._src.terrain.postprocess import blend_seam as blend_seam
 from jaxgfx._src.terrain.postprocess import mesh_normals as mesh_normals
 from jaxgfx._src.terrain.postprocess import pattern_filter as pattern_filter
 from jaxgfx._src.terrain.postprocess import smooth_mesh as smooth_mesh
@@ -165,6 +166,7 @@ __all__ = [
     "pattern_filter",
     "smooth_mesh",
     "mesh_normals",
+    "blend_seam",
     "SubdividedMesh",
     "subdivide_mesh",
     # drawing the levels

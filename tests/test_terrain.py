@@ -740,6 +740,30 @@ def test_levels_lie_on_the_same_surface(viewer):
         assert abs(err(p[f[up]].mean(axis=1)).mean()) <= 0.25 * (1 << lvl) + 0.25, lvl
 
 
+def test_blend_keeps_the_seam_and_settles():
+    # blend_seam (the pipeline's weld) relaxes only the band inside the ring: the
+    # ring stays on the outer surface, and re-welding a blended mesh barely moves it.
+    t = T.heightmap_terrain(SMOOTH_MAP, base=-12)
+    viewer = np.array([5, 2, 7])
+    b0, b1 = (
+        clipbox_jit(t, jnp.asarray(T.clipbox_origin(viewer, lvl, N), jnp.int32), lvl, size=N)
+        for lvl in (0, 1)
+    )
+    inner, outer = smooth_jit(b0), smooth_jit(b1)
+    welded = jax.jit(T.weld_seam)(inner, outer)
+    blended = PIPE.weld_fn(inner, outer)
+    used = int(inner.num_vertices)
+    lat = np.asarray(inner.lattice)[:used]
+    ring = np.any((lat <= 1) | (lat >= N - 1), -1)
+    moved = np.abs(np.asarray(blended.vertices) - np.asarray(welded.vertices))[:used].max(-1)
+    assert ring.any() and moved[ring].max() == 0.0
+    assert moved[~ring].max() > 0.05  # the band did move
+    deep = np.all((lat > 2 + 3) & (lat < N - 2 - 3), -1)
+    assert moved[deep].max() == 0.0
+    again = PIPE.weld_fn(blended, outer)
+    assert np.abs(np.asarray(again.vertices) - np.asarray(blended.vertices)).max() < 0.25
+
+
 @pytest.mark.parametrize("name", ["saw", "csg"])
 def test_exported_mesh_is_one_surface(name):
     # Issue 17 item 5: the levels welded into one surface -- no duplicate vertices,

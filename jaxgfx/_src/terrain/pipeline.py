@@ -30,8 +30,9 @@ from jaxgfx._src.terrain.clipbox import (
 )
 from jaxgfx._src.terrain.display import level_views
 from jaxgfx._src.terrain.functions import _I32
-from jaxgfx._src.terrain.meshing import voxels_to_mesh, weld_seam
+from jaxgfx._src.terrain.meshing import voxels_to_mesh
 from jaxgfx._src.terrain.postprocess import (
+    blend_seam,
     mesh_normals,
     pattern_filter,
     smooth_mesh,
@@ -118,7 +119,7 @@ class ClipBoxPipeline:
         self.extract_fn = jax.jit(voxels_to_mesh, static_argnames=("max_quads", "seam"))
         self.smooth_fn = jax.jit(smooth_mesh, static_argnames=("iterations",))
         self.normals_fn = jax.jit(mesh_normals)
-        self.weld_fn = jax.jit(weld_seam)
+        self.weld_fn = jax.jit(blend_seam)
         self.subdivide_fn = jax.jit(subdivide_mesh)
 
     def views(self, state: NestedClipBoxes) -> list[dict[str, np.ndarray]]:
@@ -166,12 +167,15 @@ class ClipBoxPipeline:
         return mesh
 
     def _weld_all(self, meshes: list, changed) -> list:
-        # Welding only rewrites an inner mesh's boundary vertices, which lie strictly
-        # inside the outer box, so welded meshes can be re-welded in any order.
+        # Outermost pair first: blending moves an outer mesh's vertices up to a few
+        # voxels inside its border, where the next inner box's seam may lie, so an
+        # inner level is welded after (and again whenever) its outer level changed.
         out = list(meshes)
-        for lvl in range(self.levels - 1):
-            if lvl in changed or lvl + 1 in changed:
+        dirty = set(changed)
+        for lvl in range(self.levels - 2, -1, -1):
+            if lvl in dirty or lvl + 1 in dirty:
                 out[lvl] = self.weld_fn(out[lvl], out[lvl + 1])
+                dirty.add(lvl)
         return out
 
     def init(self, viewer) -> NestedClipBoxes:

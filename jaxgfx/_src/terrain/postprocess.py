@@ -15,9 +15,16 @@ import jax
 import jax.numpy as jnp
 
 from jaxgfx._src.terrain.functions import _I32
-from jaxgfx._src.terrain.meshing import ClipBoxMesh
+from jaxgfx._src.terrain.meshing import ClipBoxMesh, weld_seam
 
-__all__ = ["pattern_filter", "smooth_mesh", "mesh_normals", "SubdividedMesh", "subdivide_mesh"]
+__all__ = [
+    "pattern_filter",
+    "smooth_mesh",
+    "mesh_normals",
+    "blend_seam",
+    "SubdividedMesh",
+    "subdivide_mesh",
+]
 
 
 # --------------------------------------------------------------------------------------
@@ -105,6 +112,50 @@ def mesh_normals(mesh: ClipBoxMesh) -> ClipBoxMesh:
     ok = n2 > 1e-20
     nrm = jnp.where(ok, acc * jax.lax.rsqrt(jnp.where(ok, n2, 1.0)), 0.0)
     return dataclasses.replace(mesh, normals=nrm)
+
+
+def blend_seam(
+    inner: ClipBoxMesh, outer: ClipBoxMesh, *, band: int = 3, iterations: int = 12
+) -> ClipBoxMesh:
+    """Welds ``inner`` onto ``outer`` and relaxes the band between the ring and the rest.
+
+    :func:`weld_seam` puts the seam ring on the outer surface; the inner level's own
+    surface starts one voxel further in, up to an outer voxel higher or lower (the
+    levels quantize heights differently), which showed as a ledge along the box
+    border.  The ``band`` vertices inside the ring are relaxed towards the mean of
+    their linked neighbours with the ring and everything deeper held fixed: a
+    near-harmonic ramp, so re-welding an already blended mesh changes it little.
+    Normals are recomputed, the ring's taken from the outer mesh.
+
+    Args:
+        inner: level-l mesh (smoothed, with normals) built with ``seam=True``.
+        outer: level-(l+1) mesh whose box contains the inner box.
+        band: static width of the relaxed band in inner voxels.
+        iterations: static relaxation steps.
+    """
+    m = weld_seam(inner, outer)
+    c, n = m.lattice, m.size
+    live = jnp.arange(c.shape[0]) < m.num_vertices
+    ring = jnp.any((c <= 1) | (c >= n - 1), axis=-1)
+    near = jnp.any((c <= 2 + band) | (c >= n - 2 - band), axis=-1)
+    free = (live & near & ~ring)[:, None]
+    nb = m.neighbors
+    has = nb >= 0
+    idx = jnp.where(has, nb, nb.shape[0])
+    deg = jnp.sum(has, axis=-1, keepdims=True).astype(jnp.float32)
+    step_w = jnp.where(free & (deg > 0), 0.8 / jnp.maximum(deg, 1.0), 0.0)
+
+    def step(p, _):
+        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
+        total = pe[idx[:, 0]]
+        for k in range(1, 6):
+            total = total + pe[idx[:, k]]
+        return p + step_w * (total - deg * p), None
+
+    p, _ = jax.lax.scan(step, m.vertices, None, length=iterations)
+    nrm = mesh_normals(dataclasses.replace(m, vertices=p)).normals
+    # the ring keeps the outer mesh's normals (from weld_seam), so shading is seamless
+    return dataclasses.replace(m, vertices=p, normals=jnp.where(ring[:, None], m.normals, nrm))
 
 
 # --------------------------------------------------------------------------------------
