@@ -258,7 +258,7 @@ def run_sweep(
     :func:`render_fingerprint`), the output names, shapes and dtypes, and ``version``.
 
     Returns:
-        Summary dict: ``{"n", "chunks", "computed", "skipped", "out_dir"}``.
+        Summary dict: ``{"n", "chunks", "computed", "skipped", "devices", "out_dir"}``.
 
     Raises:
         ValueError: ``out_dir`` holds a different sweep; the message names each part that
@@ -335,6 +335,7 @@ def run_sweep(
         "chunks": n_chunks,
         "computed": computed,
         "skipped": skipped,
+        "devices": ndev,
         "out_dir": str(out_dir),
     }
 

@@ -105,6 +105,7 @@ def test_sweep_killed_halfway_resumes(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads(done.stdout.strip().splitlines()[-1])
     assert summary["skipped"] == 2 and summary["computed"] == 2
+    assert summary["devices"] == 1  # the user's XLA_FLAGS device count is kept
     frames = sorted(out.glob("frame_*.png"))
     assert len(frames) == 8
     # every frame is intact and holds exactly the rendered data of its chunk
@@ -116,6 +117,25 @@ def test_sweep_killed_halfway_resumes(tmp_path):
     assert len({data["color"][k].tobytes() for k in range(8)}) == 8
     sheet = iio.imread(out / "contact_sheet.png")
     assert sheet.shape == (32, 120, 3)
+
+
+def test_cli_sweep_gives_jax_the_host_devices(tmp_path):
+    """Without XLA_FLAGS the CLI sets the host device count before JAX starts (here 2)."""
+    mesh_file = tmp_path / "box.ply"
+    trimesh.creation.box((1.0, 0.6, 0.8)).export(mesh_file)
+    env = _env(1)
+    del env["XLA_FLAGS"]
+    cmd = [
+        sys.executable, "-m", "jaxgfx.cli", "sweep", str(mesh_file),
+        "--n", "3", "--chunk", "1", "--size", "12x8", "--devices", "2",
+        "--out", str(tmp_path / "s"),
+    ]  # fmt: skip
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    # --chunk 1 is rounded up to the 2 devices: 3 frames in 2 chunks (the last one padded)
+    assert summary["devices"] == 2 and summary["chunks"] == 2 and summary["frames"] == 3
+    assert len(list((tmp_path / "s").glob("frame_*.png"))) == 3
 
 
 def _tint_sweep(tint):
