@@ -49,6 +49,7 @@ __all__ = [
     "sharded_renderer",
     "run_sweep",
     "render_fingerprint",
+    "SweepMismatch",
     "load_sweep",
     "chunk_path",
 ]
@@ -198,23 +199,35 @@ _PARTS = {
     "or the backend)",
     "outputs": "the output names, shapes or dtypes",
     "version": "the version string",
+    "fingerprint": "the manifest's format (written by an older jaxgfx)",
 }
 
 
+class SweepMismatch(ValueError):
+    """``out_dir`` holds a different sweep; ``parts`` describes each part that differs."""
+
+    def __init__(self, out_dir: Path, parts: str) -> None:
+        self.out_dir = out_dir
+        self.parts = parts
+        super().__init__(
+            f"out_dir {out_dir} holds a different sweep, so its chunks cannot be reused: "
+            f"{parts}. To start over, delete {out_dir} or pass a new out_dir (to keep the old "
+            "chunks, undo the change)"
+        )
+
+
 def _check_manifest(out_dir: Path, old: dict, new: dict) -> None:
-    """Raises a ValueError naming every part in which ``out_dir``'s sweep differs."""
+    """Raises :class:`SweepMismatch` naming every part in which ``out_dir``'s sweep differs."""
     keys = sorted(set(old) | set(new), key=lambda k: list(_PARTS).index(k) if k in _PARTS else 99)
     diff = [k for k in keys if old.get(k) != new.get(k)]
-    if not diff:
-        return
-    parts = "; ".join(
-        f"{_PARTS.get(k, k)} ({k}: on disk {old.get(k)!r}, now {new.get(k)!r})" for k in diff
-    )
-    raise ValueError(
-        f"out_dir {out_dir} holds a different sweep, so its chunks cannot be reused: {parts}. "
-        f"To start over, delete {out_dir} or pass a new out_dir (to keep the old chunks, "
-        "undo the change)"
-    )
+    if diff:
+        raise SweepMismatch(
+            out_dir,
+            "; ".join(
+                f"{_PARTS.get(k, k)} ({k}: on disk {old.get(k)!r}, now {new.get(k)!r})"
+                for k in diff
+            ),
+        )
 
 
 def _chunk_ok(path: Path, n_items: int) -> bool:
@@ -261,8 +274,9 @@ def run_sweep(
         Summary dict: ``{"n", "chunks", "computed", "skipped", "devices", "out_dir"}``.
 
     Raises:
-        ValueError: ``out_dir`` holds a different sweep; the message names each part that
-            differs (params, chunking, function, outputs, version).  Nothing is written.
+        SweepMismatch: (a ValueError) ``out_dir`` holds a different sweep; the message
+            names each part that differs (params, chunking, function, outputs, version).
+            Nothing is written.
         TypeError: ``render_fn`` does not return a dict of arrays, or ``version`` is not a str.
     """
     chunk_size = check_int("chunk_size", chunk_size, low=1)

@@ -16,7 +16,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxgfx.sweep import load_sweep, render_fingerprint, run_sweep, sharded_renderer
+from jaxgfx.sweep import (
+    SweepMismatch,
+    load_sweep,
+    render_fingerprint,
+    run_sweep,
+    sharded_renderer,
+)
 
 SHARDED = textwrap.dedent(
     """
@@ -117,6 +123,15 @@ def test_sweep_killed_halfway_resumes(tmp_path):
     assert len({data["color"][k].tobytes() for k in range(8)}) == 8
     sheet = iio.imread(out / "contact_sheet.png")
     assert sheet.shape == (32, 120, 3)
+    # Another view into the same folder is refused before anything is rendered or written.
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    other = subprocess.run(
+        [*cmd, "--fov", "50"], env=_env(1), capture_output=True, text=True, timeout=600
+    )
+    assert other.returncode == 2
+    assert f"jaxgfx sweep: error: --out {out} holds a different sweep" in other.stderr
+    assert "per-item parameters" in other.stderr and "delete" in other.stderr
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
 
 
 def test_cli_sweep_gives_jax_the_host_devices(tmp_path):
@@ -159,7 +174,7 @@ def test_resume_refuses_a_changed_function(tmp_path):
     assert s["computed"] == 0 and s["skipped"] == 3
     # A different closed-over constant, the same shapes: refused, naming the function.
     other, _ = _tint_sweep([1.0, 3.0])
-    with pytest.raises(ValueError, match=r"render function \(.*function: on disk.*delete"):
+    with pytest.raises(SweepMismatch, match=r"render function \(.*function: on disk.*delete"):
         run_sweep(other, params, tmp_path, chunk_size=2, devices=jax.devices()[:1], progress=False)
     # Other output shapes: both the function and the outputs are named.
     wider, _ = _tint_sweep([1.0, 2.0, 3.0])

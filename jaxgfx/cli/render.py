@@ -186,7 +186,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     from jaxgfx.compose import background, composite, to_uint8
     from jaxgfx.io import load_mesh, mesh_arrays, save_png
     from jaxgfx.scene import mesh_pass, render_mesh_pass
-    from jaxgfx.sweep import load_sweep, run_sweep
+    from jaxgfx.sweep import SweepMismatch, load_sweep, run_sweep
 
     if args.n <= 0:
         raise CliError(f"--n must be positive, got {args.n}")
@@ -216,9 +216,15 @@ def run_sweep(args: argparse.Namespace) -> int:
                 save_png(p, img)
 
     t0 = time.perf_counter()
-    summary = run_sweep(
-        render_one, cams, out / "chunks", args.chunk, devices=devices, on_chunk=write_frames
-    )
+    try:
+        summary = run_sweep(
+            render_one, cams, out / "chunks", args.chunk, devices=devices, on_chunk=write_frames
+        )
+    except SweepMismatch as exc:  # the frames beside the chunks are stale too
+        raise CliError(
+            f"--out {out} holds a different sweep: {exc.parts}. To start over, delete {out} "
+            "or choose another --out"
+        ) from None
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     allv = load_sweep(out / "chunks")
     save_png(out / "contact_sheet.png", contact_sheet(allv["color"], min(args.n, 6)))
