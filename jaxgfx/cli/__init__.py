@@ -83,6 +83,12 @@ def host_cores() -> int:
         return os.cpu_count() or 1
 
 
+def _cpu_first(environ: Mapping[str, str]) -> bool:
+    """False when ``JAX_PLATFORMS`` (or the older ``JAX_PLATFORM_NAME``) puts another first."""
+    platforms = environ.get("JAX_PLATFORMS") or environ.get("JAX_PLATFORM_NAME") or ""
+    return not platforms or platforms.split(",")[0].strip().lower() == "cpu"
+
+
 def host_device_flags(environ: Mapping[str, str], devices: int | None, cores: int) -> str | None:
     """The ``XLA_FLAGS`` value that gives JAX one host (CPU) device per core, or None.
 
@@ -96,10 +102,7 @@ def host_device_flags(environ: Mapping[str, str], devices: int | None, cores: in
         cores: the number of host cores (:func:`host_cores`).
     """
     flags = environ.get("XLA_FLAGS", "")
-    if _COUNT_FLAG in flags:
-        return None
-    platforms = environ.get("JAX_PLATFORMS") or environ.get("JAX_PLATFORM_NAME") or ""
-    if platforms and platforms.split(",")[0].strip().lower() != "cpu":
+    if _COUNT_FLAG in flags or not _cpu_first(environ):
         return None
     n = cores if devices is None else devices
     if n <= 1:
@@ -116,7 +119,7 @@ def _use_host_cores(devices: int | None) -> None:
     from jax._src import xla_bridge
 
     cores = host_cores()
-    if devices is not None and devices > cores:
+    if devices is not None and devices > cores and _cpu_first(os.environ):
         # More host devices than cores only queue on the same cores; thousands stall XLA.
         raise CliError(f"--devices {devices}: this process may use only {cores} core(s)")
 
