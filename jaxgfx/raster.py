@@ -456,6 +456,17 @@ def rasterize(
         :class:`RasterOutput` with colour (H, W, C), depth (H, W) (camera z,
         +inf where empty), triangle id (H, W) and barycentrics (H, W, 3).
 
+    Gradients:
+        ``depth``, ``bary`` and ``color`` are differentiable (forward and reverse mode)
+        with respect to ``vertices``, ``attributes`` and the camera's float fields
+        (position, angles, fov) wherever coverage does not change: the visible face of
+        each pixel is found without gradients, then the pixel's ray is intersected with
+        that face differentiably.  Silhouette (coverage) gradients are therefore ZERO
+        here: moving an edge across a pixel changes the image, but no derivative says so
+        (use a soft rasterizer or edge sampling for those).  ``near``/``far`` act only
+        through coverage and get zero gradient; at grazing faces (ray almost in the
+        face's plane) the depth falls back to the z-buffer's and its gradient is zero.
+
     Raises:
         ValueError / TypeError: for bad concrete inputs (checked before tracing).
     """
@@ -477,16 +488,20 @@ def rasterize(
             jnp.zeros((h, w, 3), jnp.float32),
         )
     p_cam = world_to_camera(cam, vertices)[faces]  # (F, 3, 3) for the per-pixel resolve
-    tris = clip_near(corners_soa(cam, vertices, faces), cam.near)
+    # Which face a pixel sees is piecewise constant in the inputs: its derivative is zero
+    # wherever it exists.  Cutting the gradient here says so, and keeps the z-buffer's
+    # while_loop and scatters out of JVPs/VJPs (reverse mode cannot go through a while_loop).
+    cam_c, vertices_c = jax.lax.stop_gradient((cam, vertices))
+    tris = clip_near(corners_soa(cam_c, vertices_c, faces), cam_c.near)
     if cull_backfaces:
-        tri_w = vertices[faces]
+        tri_w = vertices_c[faces]
         n = jnp.cross(tri_w[:, 1] - tri_w[:, 0], tri_w[:, 2] - tri_w[:, 0])
-        front = jnp.sum(n * (tri_w[:, 0] - cam.position), -1) < 0
+        front = jnp.sum(n * (tri_w[:, 0] - cam_c.position), -1) < 0
         keep = jnp.concatenate([front, front])
     else:
         keep = jnp.ones(tris.valid.shape, bool)
-    setup = triangle_setup(cam, tris, keep, block)
-    inv_depth, face_id = visibility(cam, setup, block, chunk)
+    setup = triangle_setup(cam_c, tris, keep, block)
+    inv_depth, face_id = visibility(cam_c, setup, block, chunk)
     depth, tri_id, bary = resolve(cam, p_cam, inv_depth, face_id)
     color = interpolate(attributes, faces, tri_id, bary)
     return RasterOutput(color, depth, tri_id, bary)

@@ -15,7 +15,14 @@ with ``multihost_utils.process_allgather`` and written by process 0 only.
 
 Every finished chunk is written atomically as ``chunk_XXXXX.npz`` beside a
 ``manifest.json``; a sweep that is interrupted (even by SIGKILL) and started
-again with the same arguments skips the chunks already on disk.
+again with the same arguments skips the chunks already on disk.  The manifest records
+what defines the results (parameters, chunking, a hash of the lowered render function, the
+output shapes, an optional version string); a different sweep into the same folder is
+refused with a ValueError that names what differs, so results never mix.
+
+XLA:CPU runs one computation on one core; to use every core, give JAX one host device per
+core before it starts, e.g. ``XLA_FLAGS=--xla_force_host_platform_device_count=8``
+(``jaxgfx sweep`` does this itself; see ``--devices``).
 """
 
 from __future__ import annotations
@@ -41,6 +48,8 @@ __all__ = [
     "ShardedRenderer",
     "sharded_renderer",
     "run_sweep",
+    "render_fingerprint",
+    "SweepMismatch",
     "load_sweep",
     "chunk_path",
 ]
@@ -148,6 +157,79 @@ def _fingerprint(params, chunk_size: int) -> str:
     return h.hexdigest()[:16]
 
 
+def render_fingerprint(render_fn: Callable, chunk_params) -> dict:
+    """What defines a sweep's output besides its parameters: the computation and its outputs.
+
+    ``jax.jit(jax.vmap(render_fn))`` is lowered (not compiled) for one chunk's parameters and
+    its StableHLO text, without source locations, is hashed.  Constants the function closes
+    over (a mesh, a colour, a light) are printed in full into that text, so changing any of
+    them, or the code, changes the hash; the text has no addresses or ids, so the hash is the
+    same in every process.  It does depend on the JAX version and the backend (lowering
+    rules are per platform).
+
+    Args:
+        render_fn: ``item -> pytree`` for ONE item.
+        chunk_params: one chunk's parameters, leading axis = the chunk size.
+
+    Returns:
+        ``{"function": 16 hex digits, "outputs": {"name": "dtype[shape]", ...}}``; the
+        output shapes include the chunk axis.
+    """
+    return _lowered_fingerprint(render_fn, chunk_params)[0]
+
+
+def _lowered_fingerprint(render_fn: Callable, chunk_params) -> tuple[dict, Any]:
+    """:func:`render_fingerprint` and the lowered computation's output avals."""
+    lowered = jax.jit(jax.vmap(render_fn)).lower(chunk_params)
+    text = lowered.as_text(debug_info=False)
+    paths_avals = jax.tree_util.tree_flatten_with_path(lowered.out_info)[0]
+    outputs = {
+        jax.tree_util.keystr(path) or "out": f"{a.dtype}{list(a.shape)}" for path, a in paths_avals
+    }
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    return {"function": digest, "outputs": outputs}, lowered.out_info
+
+
+_PARTS = {
+    "n": "the number of items",
+    "chunk_size": "the chunk size (after rounding to the device count)",
+    "n_chunks": "the number of chunks",
+    "params": "the per-item parameters",
+    "function": "the render function (its code, a constant it closes over, the JAX version "
+    "or the backend)",
+    "outputs": "the output names, shapes or dtypes",
+    "version": "the version string",
+    "fingerprint": "the manifest's format (written by an older jaxgfx)",
+}
+
+
+class SweepMismatch(ValueError):
+    """``out_dir`` holds a different sweep; ``parts`` describes each part that differs."""
+
+    def __init__(self, out_dir: Path, parts: str) -> None:
+        self.out_dir = out_dir
+        self.parts = parts
+        super().__init__(
+            f"out_dir {out_dir} holds a different sweep, so its chunks cannot be reused: "
+            f"{parts}. To start over, delete {out_dir} or pass a new out_dir (to keep the old "
+            "chunks, undo the change)"
+        )
+
+
+def _check_manifest(out_dir: Path, old: dict, new: dict) -> None:
+    """Raises :class:`SweepMismatch` naming every part in which ``out_dir``'s sweep differs."""
+    keys = sorted(set(old) | set(new), key=lambda k: list(_PARTS).index(k) if k in _PARTS else 99)
+    diff = [k for k in keys if old.get(k) != new.get(k)]
+    if diff:
+        raise SweepMismatch(
+            out_dir,
+            "; ".join(
+                f"{_PARTS.get(k, k)} ({k}: on disk {old.get(k)!r}, now {new.get(k)!r})"
+                for k in diff
+            ),
+        )
+
+
 def _chunk_ok(path: Path, n_items: int) -> bool:
     try:
         with np.load(path) as z:
@@ -164,6 +246,7 @@ def run_sweep(
     devices=None,
     progress: bool = True,
     on_chunk: Callable | None = None,
+    version: str | None = None,
 ) -> dict:
     """Renders every item of ``params`` in chunks, resumably.
 
@@ -178,34 +261,50 @@ def run_sweep(
         on_chunk: optional ``callback(k, start, outputs)`` called after chunk k
             is on disk (e.g. to write per-frame PNGs); also called for chunks
             found on disk, so derived files are completed on resume.
+        version: optional label of what ``render_fn`` means (e.g. ``"shading v3"``); stored
+            in the manifest and compared on resume, for changes the lowered computation
+            cannot see (e.g. an ``on_chunk`` that writes other files).
+
+    A sweep started again into the same ``out_dir`` reuses the chunks on disk only when
+    everything that defines them is unchanged: the parameters, the chunking, the render
+    function (a hash of ``jax.jit(jax.vmap(render_fn))`` lowered for one chunk, see
+    :func:`render_fingerprint`), the output names, shapes and dtypes, and ``version``.
 
     Returns:
-        Summary dict: ``{"n", "chunks", "computed", "skipped", "out_dir"}``.
+        Summary dict: ``{"n", "chunks", "computed", "skipped", "devices", "out_dir"}``.
 
     Raises:
-        ValueError: ``out_dir`` holds a different sweep (other params or chunking).
+        SweepMismatch: (a ValueError) ``out_dir`` holds a different sweep; the message
+            names each part that differs (params, chunking, function, outputs, version).
+            Nothing is written.
+        TypeError: ``render_fn`` does not return a dict of arrays, or ``version`` is not a str.
     """
     chunk_size = check_int("chunk_size", chunk_size, low=1)
+    if version is not None and not isinstance(version, str):
+        raise TypeError(f"version must be a str or None, got {type(version).__name__}")
     n = batch_size(params)
     mesh = device_mesh(devices)
     ndev = mesh.devices.size
     chunk_size = -(-chunk_size // ndev) * ndev
     n_chunks = -(-n // chunk_size)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    # Lowering (no compile) for one chunk: the function's fingerprint, and a bad return type
+    # is reported before anything is computed or written.
+    defines, out_info = _lowered_fingerprint(render_fn, _slice(params, 0, 1, chunk_size))
+    if not isinstance(out_info, dict):
+        raise TypeError("render_fn must return a dict of arrays")
     manifest = {
         "n": n,
         "chunk_size": chunk_size,
         "n_chunks": n_chunks,
-        "fingerprint": _fingerprint(params, chunk_size),
+        "params": _fingerprint(params, chunk_size),
+        **defines,
+        "version": version,
     }
+    out_dir.mkdir(parents=True, exist_ok=True)
     mpath = out_dir / "manifest.json"
     if mpath.exists():
-        old = json.loads(mpath.read_text())
-        if old != manifest:
-            raise ValueError(
-                f"out_dir {out_dir} holds a different sweep ({old}); use a new directory"
-            )
+        _check_manifest(out_dir, json.loads(mpath.read_text()), manifest)
     elif jax.process_index() == 0:
         save_json(mpath, manifest)
     fn = jax.jit(
@@ -230,8 +329,6 @@ def run_sweep(
                     on_chunk(k, start, {key: z[key] for key in z.files})
         else:
             out = _run(fn, _slice(params, start, stop, chunk_size), mesh)
-            if not isinstance(out, dict):
-                raise TypeError("render_fn must return a dict of arrays")
             out = {key: v[: stop - start] for key, v in out.items()}
             if jax.process_index() == 0:
                 with atomic_write(path) as tmp:
@@ -252,6 +349,7 @@ def run_sweep(
         "chunks": n_chunks,
         "computed": computed,
         "skipped": skipped,
+        "devices": ndev,
         "out_dir": str(out_dir),
     }
 

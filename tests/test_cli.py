@@ -246,6 +246,8 @@ def test_bad_numbers(tmp_path, capsys, ico):
         (["skin", "--twist", "-361"], "--twist"),
         (["skin", "--bend", "inf"], "--bend"),
         (["sweep", ico, "--n", "0"], "--n"),
+        (["sweep", ico, "--devices", "0"], "--devices"),
+        (["sweep", ico, "--devices", "4096", "--out", str(tmp_path / "s")], "--devices"),
         (["demo", "--frames", "-1"], "--frames"),
         (["demo", "--frames", "100000"], "--frames"),
         (["demo", "--data", str(tmp_path / "nowhere"), "--out", str(tmp_path)], "--data"),
@@ -354,3 +356,19 @@ def test_render_up_z_stands_a_scan_upright(tmp_path):
     rows, cols = np.nonzero(np.isfinite(np.load(npy)))
     # upright: the silhouette is 6 : 2 tall (lying, as y-up, it is about as tall as wide: 9 : 9)
     assert np.ptp(rows) > 2.0 * np.ptp(cols)
+
+
+def test_host_device_flags():
+    from jaxgfx.cli import host_device_flags
+
+    flag = "--xla_force_host_platform_device_count"
+    assert host_device_flags({}, None, 8) == f"{flag}=8"  # one device per core
+    assert host_device_flags({}, 3, 8) == f"{flag}=3"  # --devices
+    assert host_device_flags({"XLA_FLAGS": "--xla_cpu_foo=1"}, None, 4) == (
+        f"--xla_cpu_foo=1 {flag}=4"
+    )  # other flags kept
+    assert host_device_flags({"XLA_FLAGS": f"{flag}=2"}, None, 8) is None  # the user's count
+    assert host_device_flags({"XLA_FLAGS": f"{flag}=2"}, 6, 8) is None
+    assert host_device_flags({"JAX_PLATFORMS": "cuda"}, None, 8) is None  # not the CPU
+    assert host_device_flags({"JAX_PLATFORMS": "cpu"}, None, 8) == f"{flag}=8"
+    assert host_device_flags({}, None, 1) is None  # one core: nothing to add

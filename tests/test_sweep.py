@@ -1,4 +1,5 @@
-"""Sharded sweeps over 4 host devices and resuming after a hard kill (subprocesses)."""
+"""Sharded sweeps over 4 host devices, resuming after a hard kill (subprocesses), resume
+refused for a changed function, and no recompilation between chunks."""
 
 from __future__ import annotations
 
@@ -9,8 +10,19 @@ import sys
 import textwrap
 
 import imageio.v3 as iio
+import jax
+import jax.numpy as jnp
 import numpy as np
+import pytest
 import trimesh
+
+from jaxgfx.sweep import (
+    SweepMismatch,
+    load_sweep,
+    render_fingerprint,
+    run_sweep,
+    sharded_renderer,
+)
 
 SHARDED = textwrap.dedent(
     """
@@ -99,11 +111,10 @@ def test_sweep_killed_halfway_resumes(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads(done.stdout.strip().splitlines()[-1])
     assert summary["skipped"] == 2 and summary["computed"] == 2
+    assert summary["devices"] == 1  # the user's XLA_FLAGS device count is kept
     frames = sorted(out.glob("frame_*.png"))
     assert len(frames) == 8
     # every frame is intact and holds exactly the rendered data of its chunk
-    from jaxgfx.sweep import load_sweep
-
     data = load_sweep(out / "chunks")
     assert data["color"].shape == (8, 16, 20, 3)
     for k, f in enumerate(frames):
@@ -112,3 +123,114 @@ def test_sweep_killed_halfway_resumes(tmp_path):
     assert len({data["color"][k].tobytes() for k in range(8)}) == 8
     sheet = iio.imread(out / "contact_sheet.png")
     assert sheet.shape == (32, 120, 3)
+    # Another view into the same folder is refused before anything is rendered or written.
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    other = subprocess.run(
+        [*cmd, "--fov", "50"], env=_env(1), capture_output=True, text=True, timeout=600
+    )
+    assert other.returncode == 2
+    assert f"jaxgfx sweep: error: --out {out} holds a different sweep" in other.stderr
+    assert "per-item parameters" in other.stderr and "delete" in other.stderr
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == files
+
+
+def test_cli_sweep_gives_jax_the_host_devices(tmp_path):
+    """Without XLA_FLAGS the CLI sets the host device count before JAX starts (here 2)."""
+    mesh_file = tmp_path / "box.ply"
+    trimesh.creation.box((1.0, 0.6, 0.8)).export(mesh_file)
+    env = _env(1)
+    del env["XLA_FLAGS"]
+    cmd = [
+        sys.executable, "-m", "jaxgfx.cli", "sweep", str(mesh_file),
+        "--n", "3", "--chunk", "1", "--size", "12x8", "--devices", "2",
+        "--out", str(tmp_path / "s"),
+    ]  # fmt: skip
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    # --chunk 1 is rounded up to the 2 devices: 3 frames in 2 chunks (the last one padded)
+    assert summary["devices"] == 2 and summary["chunks"] == 2 and summary["frames"] == 3
+    assert len(list((tmp_path / "s").glob("frame_*.png"))) == 3
+
+
+def _tint_sweep(tint):
+    """A tiny render function closing over a constant (``tint``), and its parameters."""
+    tint = jnp.asarray(tint, jnp.float32)
+
+    def one(p):
+        return {"color": p[:, None] * tint, "sum": jnp.sum(p)}
+
+    return one, np.arange(15, dtype=np.float32).reshape(5, 3)
+
+
+def test_resume_refuses_a_changed_function(tmp_path):
+    one, params = _tint_sweep([1.0, 2.0])
+    s = run_sweep(one, params, tmp_path, chunk_size=2, devices=jax.devices()[:1], progress=False)
+    assert s["computed"] == 3
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    # The same function again (a fresh closure over equal constants) resumes.
+    again, _ = _tint_sweep([1.0, 2.0])
+    s = run_sweep(again, params, tmp_path, chunk_size=2, devices=jax.devices()[:1], progress=False)
+    assert s["computed"] == 0 and s["skipped"] == 3
+    # A different closed-over constant, the same shapes: refused, naming the function.
+    other, _ = _tint_sweep([1.0, 3.0])
+    with pytest.raises(SweepMismatch, match=r"render function \(.*function: on disk.*delete"):
+        run_sweep(other, params, tmp_path, chunk_size=2, devices=jax.devices()[:1], progress=False)
+    # Other output shapes: both the function and the outputs are named.
+    wider, _ = _tint_sweep([1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match=r"render function.*output names, shapes"):
+        run_sweep(wider, params, tmp_path, chunk_size=2, devices=jax.devices()[:1], progress=False)
+    # Another version string only.
+    with pytest.raises(ValueError, match=r"the version string \(version: on disk None, now 'v2'"):
+        run_sweep(
+            again, params, tmp_path, 2, devices=jax.devices()[:1], progress=False, version="v2"
+        )
+    # The refused runs left every file as it was.
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    np.testing.assert_array_equal(load_sweep(tmp_path)["color"], params[:, :, None] * [1.0, 2.0])
+
+
+def test_render_fingerprint_same_in_another_process():
+    code = textwrap.dedent(
+        """
+        import json, sys
+        sys.path.insert(0, sys.argv[1])
+        from test_sweep import _tint_sweep
+        from jaxgfx.sweep import render_fingerprint
+        one, params = _tint_sweep([1.0, 2.0])
+        print(json.dumps(render_fingerprint(one, params[:2])))
+        """
+    )
+    here = os.path.dirname(os.path.abspath(__file__))
+    res = subprocess.run(
+        [sys.executable, "-c", code, here], env=_env(1), capture_output=True, text=True, timeout=300
+    )
+    assert res.returncode == 0, res.stderr[-3000:]
+    one, params = _tint_sweep([1.0, 2.0])
+    mine = render_fingerprint(one, params[:2])
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == mine
+    assert mine["outputs"] == {"['color']": "float32[2, 3, 2]", "['sum']": "float32[2]"}
+
+
+def test_sweep_and_sharded_renderer_compile_once(tmp_path, compile_counter):
+    one, params = _tint_sweep([0.5, 4.0])
+    counts = []
+    with compile_counter() as c:
+        run_sweep(
+            one,
+            params,
+            tmp_path,
+            chunk_size=2,
+            devices=jax.devices()[:1],
+            progress=False,
+            on_chunk=lambda k, start, out: counts.append(c.count),
+        )
+    # Chunks 1 and 2 (the last one padded to the chunk size) compile nothing new.
+    assert len(counts) == 3 and counts[0] >= 1 and counts[1] == counts[0] == counts[2], counts
+    render = sharded_renderer(one, devices=jax.devices()[:1])
+    first = render(params[:2])
+    with compile_counter() as c:
+        second = render(params[2:4])
+    assert c.count == 0
+    np.testing.assert_array_equal(second["color"], params[2:4, :, None] * [0.5, 4.0])
+    assert not np.array_equal(first["color"], second["color"])

@@ -9,6 +9,12 @@ Second runs are fast: before any JAX computation :func:`main` turns on JAX's per
 compilation cache in :func:`cache_dir` (``$JAXGFX_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/jaxgfx/jax``, else ``~/.cache/jaxgfx/jax``), caching every program however
 small or quick to compile; ``jaxgfx --no-cache CMD ...`` skips it.
+
+Every core: XLA:CPU runs one computation on one core, so commands that shard a batch over
+devices (``jaxgfx sweep``, marked by a ``--devices`` option) first give JAX one host device per
+core by adding ``--xla_force_host_platform_device_count`` to ``XLA_FLAGS``
+(:func:`host_device_flags`).  ``import jaxgfx`` imports JAX but does not start its backends, so
+:func:`main` can still do this before the first JAX computation.
 """
 
 from __future__ import annotations
@@ -23,7 +29,17 @@ from typing import NoReturn
 from jaxgfx.cli import demo, info, render, skin, terrain, voxels
 from jaxgfx.cli.args import CliError, join_negative_values
 
-__all__ = ["main", "build_parser", "COMMANDS", "cache_dir", "enable_compilation_cache"]
+__all__ = [
+    "main",
+    "build_parser",
+    "COMMANDS",
+    "cache_dir",
+    "enable_compilation_cache",
+    "host_device_flags",
+    "host_cores",
+]
+
+_COUNT_FLAG = "--xla_force_host_platform_device_count"
 
 COMMANDS = (demo, render, info, voxels, terrain, skin)
 
@@ -57,6 +73,63 @@ def enable_compilation_cache(path: Path) -> bool:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     return True
+
+
+def host_cores() -> int:
+    """Cores this process may run on (its CPU affinity, else the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _cpu_first(environ: Mapping[str, str]) -> bool:
+    """False when ``JAX_PLATFORMS`` (or the older ``JAX_PLATFORM_NAME``) puts another first."""
+    platforms = environ.get("JAX_PLATFORMS") or environ.get("JAX_PLATFORM_NAME") or ""
+    return not platforms or platforms.split(",")[0].strip().lower() == "cpu"
+
+
+def host_device_flags(environ: Mapping[str, str], devices: int | None, cores: int) -> str | None:
+    """The ``XLA_FLAGS`` value that gives JAX one host (CPU) device per core, or None.
+
+    None (leave the environment alone) when the user's ``XLA_FLAGS`` already sets the host
+    device count, when ``JAX_PLATFORMS`` picks a backend other than the CPU first, or when one
+    device is all there is to ask for.  The flag only shapes the CPU backend.
+
+    Args:
+        environ: the environment (``os.environ``).
+        devices: the ``--devices`` the user asked for, or None for one per core.
+        cores: the number of host cores (:func:`host_cores`).
+    """
+    flags = environ.get("XLA_FLAGS", "")
+    if _COUNT_FLAG in flags or not _cpu_first(environ):
+        return None
+    n = cores if devices is None else devices
+    if n <= 1:
+        return None
+    return f"{flags} {_COUNT_FLAG}={n}".strip()
+
+
+def _use_host_cores(devices: int | None) -> None:
+    """Sets ``XLA_FLAGS`` for :func:`host_device_flags` if JAX's backends have not started.
+
+    Raises:
+        CliError: ``--devices`` asks for more devices than this process has cores.
+    """
+    from jax._src import xla_bridge
+
+    cores = host_cores()
+    if devices is not None and devices > cores and _cpu_first(os.environ):
+        # More host devices than cores only queue on the same cores; thousands stall XLA.
+        raise CliError(f"--devices {devices}: this process may use only {cores} core(s)")
+
+    # Once a backend runs (main() called in a process that already used JAX) the flag would
+    # change nothing but the environment of child processes.
+    if xla_bridge.backends_are_initialized():
+        return
+    flags = host_device_flags(os.environ, devices, cores)
+    if flags is not None:
+        os.environ["XLA_FLAGS"] = flags
 
 
 class _Parser(argparse.ArgumentParser):
@@ -94,9 +167,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
-    if not args.no_cache:
-        enable_compilation_cache(cache_dir())
     try:
+        if getattr(args, "devices", False) is not False:  # a command that shards over devices
+            _use_host_cores(args.devices)
+        if not args.no_cache:
+            enable_compilation_cache(cache_dir())
         return int(args.func(args) or 0)
     except (CliError, ValueError, TypeError, FileNotFoundError) as exc:
         print(f"jaxgfx {args.command}: error: {exc}", file=sys.stderr)

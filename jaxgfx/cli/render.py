@@ -164,17 +164,34 @@ def contact_sheet(images: np.ndarray, cols: int) -> np.ndarray:
     return sheet
 
 
+def _sweep_devices(wanted: int | None) -> list:
+    """The first ``wanted`` JAX devices (all when None); too many is a usage error."""
+    import jax
+
+    devs = jax.devices()
+    if wanted is None:
+        return devs
+    if wanted > len(devs):
+        flags = os.environ.get("XLA_FLAGS", "")
+        raise CliError(
+            f"--devices {wanted}: JAX has {len(devs)} {devs[0].platform} device(s)"
+            + (f" (XLA_FLAGS={flags!r} sets the host device count)" if flags else "")
+        )
+    return devs[:wanted]
+
+
 def run_sweep(args: argparse.Namespace) -> int:
     """Orbits ``--n`` cameras around a mesh, chunk by chunk (resumable); writes frames + sheet."""
     from jaxgfx.camera import orbit_cameras
     from jaxgfx.compose import background, composite, to_uint8
     from jaxgfx.io import load_mesh, mesh_arrays, save_png
     from jaxgfx.scene import mesh_pass, render_mesh_pass
-    from jaxgfx.sweep import load_sweep, run_sweep
+    from jaxgfx.sweep import SweepMismatch, load_sweep, run_sweep
 
     if args.n <= 0:
         raise CliError(f"--n must be positive, got {args.n}")
     out = check_out_dir("--out", args.out)
+    devices = _sweep_devices(args.devices)
     w, h = args.size
     # a chunk of frames in flight, plus every frame's colour + depth for the contact sheet
     need = float(w) * h * (min(args.chunk, args.n) * PIXEL_BYTES + args.n * 8)
@@ -198,7 +215,17 @@ def run_sweep(args: argparse.Namespace) -> int:
             if not p.exists():
                 save_png(p, img)
 
-    summary = run_sweep(render_one, cams, out / "chunks", args.chunk, on_chunk=write_frames)
+    t0 = time.perf_counter()
+    try:
+        summary = run_sweep(
+            render_one, cams, out / "chunks", args.chunk, devices=devices, on_chunk=write_frames
+        )
+    except SweepMismatch as exc:  # the frames beside the chunks are stale too
+        raise CliError(
+            f"--out {out} holds a different sweep: {exc.parts}. To start over, delete {out} "
+            "or choose another --out"
+        ) from None
+    summary["seconds"] = round(time.perf_counter() - t0, 3)
     allv = load_sweep(out / "chunks")
     save_png(out / "contact_sheet.png", contact_sheet(allv["color"], min(args.n, 6)))
     summary["frames"] = args.n
@@ -258,5 +285,18 @@ def register(subparsers) -> None:
         default=20.0,
         help="degrees above the horizon, in (-90, 90)",
     )
-    s.add_argument("--chunk", type=positive_int, default=4, help="cameras per chunk")
+    s.add_argument(
+        "--chunk",
+        type=positive_int,
+        default=4,
+        help="cameras per chunk (rounded up to a multiple of the devices)",
+    )
+    s.add_argument(
+        "--devices",
+        type=positive_int,
+        default=None,
+        help="devices to shard each chunk over, at most one per core (default: all; on the "
+        "CPU one per core, set through XLA_FLAGS=--xla_force_host_platform_device_count "
+        "unless XLA_FLAGS already sets it)",
+    )
     s.set_defaults(func=run_sweep)
