@@ -196,23 +196,22 @@ def analytic_antialias(
     """
     validate_camera(cam)
     validate_mesh(vertices, faces)
-    if edges is None:
-        edges = silhouette_edges(faces)
-    color = raster_out.color if color is None else color
+    topo = silhouette_edges(faces) if edges is None else edges
+    image = raster_out.color if color is None else color
     h, w = cam.height, cam.width
     for name, arr, shape in (
         ("raster_out.tri_id", raster_out.tri_id, (h, w)),
         ("raster_out.depth", raster_out.depth, (h, w)),
-        ("edges", edges, (np.shape(faces)[0], 3)),
+        ("edges", topo, (np.shape(faces)[0], 3)),
     ):
         if tuple(np.shape(arr)) != shape:
             raise ValueError(f"{name} must have shape {shape}, got {tuple(np.shape(arr))}")
-    if np.ndim(color) != 3 or tuple(np.shape(color)[:2]) != (h, w):
-        raise ValueError(f"color must have shape ({h}, {w}, C), got {tuple(np.shape(color))}")
+    if np.ndim(image) != 3 or tuple(np.shape(image)[:2]) != (h, w):
+        raise ValueError(f"color must have shape ({h}, {w}, C), got {tuple(np.shape(image))}")
     vertices = jnp.asarray(vertices, jnp.float32)
     faces = jnp.asarray(faces, jnp.int32)
-    edges = jnp.asarray(edges, jnp.int32)
-    color = jnp.asarray(color, jnp.float32)
+    opposite = jnp.asarray(topo, jnp.int32)
+    color = jnp.asarray(image, jnp.float32)
     if faces.shape[0] == 0:
         return color
     p_cam = world_to_camera(cam, vertices)
@@ -229,7 +228,7 @@ def analytic_antialias(
     def pairs(sl_a, sl_b):
         return _pair_deltas(
             rays[sl_a], rays[sl_b], tri[sl_a], tri[sl_b], depth[sl_a], depth[sl_b],
-            color[sl_a], color[sl_b], p_cam, faces, edges,
+            color[sl_a], color[sl_b], p_cam, faces, opposite,
         )  # fmt: skip
 
     # Horizontal pairs (x, x + 1), then vertical pairs (y, y + 1).
