@@ -248,5 +248,6 @@ def test_vmap_over_cameras_equals_loop():
         jax.tree_util.tree_map(stack, *cams), jax.tree_util.tree_map(stack, *(o for _, o in outs))
     )
     for i, (aa, _) in enumerate(outs):
-        # float32 rounding of a differently fused program (blend weights to ~1e-5).
-        np.testing.assert_allclose(batched[i], aa, atol=1e-5)
+        # A differently fused float32 program: the crossing (a ratio of dot products of
+        # camera-space cross products) carries ~1e-5 of rounding.
+        np.testing.assert_allclose(batched[i], aa, atol=1e-4)
