@@ -38,7 +38,8 @@ edge (one face) or when the face on its other side folds back: its opposite
 vertex lies on the same side of the edge's eye plane as the front triangle's
 own third vertex (the two faces face opposite ways with respect to the
 camera).  Only silhouette edges blend; the shared edges of a continuous
-surface are left alone.
+surface are left alone, and so are outlines that are not mesh edges: where
+the near or far plane cuts a triangle, and where two surfaces intersect.
 """
 
 from __future__ import annotations

@@ -12,7 +12,14 @@ import pytest
 import trimesh
 from jax.test_util import check_grads
 
-from jaxgfx.camera import camera_basis, camera_from_degrees, look_at, project, screen_to_camera
+from jaxgfx.camera import (
+    camera_basis,
+    camera_from_degrees,
+    look_at,
+    project,
+    screen_to_camera,
+    supersampled,
+)
 from jaxgfx.raster import rasterize
 from jaxgfx.silhouette import analytic_antialias, silhouette_edges
 
@@ -26,6 +33,9 @@ FD_STEP = 1e-4
 # The camera moves every edge at once, and fast (yaw: ~40 px per radian), so a smaller step
 # keeps more edge pixels away from the kinks where an edge crosses a pixel centre.
 CAM_FD_STEP = 1e-5
+# Antialiased silhouette pixels are at least this much closer (mean |error|) to an 8x8
+# supersampled render than the z-buffer's (measured: 0.023 against 0.061).
+AA_GAIN = 0.5
 
 # Every scene is padded to these sizes and every camera is 48x32, so the jitted render, jvp
 # and gradient below compile once for the whole file.
@@ -128,6 +138,26 @@ def test_only_silhouettes_blend():
     assert len(np.unique(tri[~bg])) >= 3
     assert changed.sum() > 20 and not (changed & ~near_bg).any()
     assert np.abs(aa - color).max() <= 1.0 + 1e-6
+
+
+def test_closer_to_supersampling_than_the_raw_image():
+    # Independent reference: the 8x8-supersampled render averaged down (exact coverage up to
+    # 1/64).  On pixels next to the background the blend must remove most of the aliasing.
+    aa, color, tri = (np.asarray(a) for a in _cube_aa(CUBE_CAM, CUBE_V))
+    big = supersampled(CUBE_CAM, (8, 8))
+    fine = jax.jit(lambda cam: rasterize(cam, CUBE_V, CUBE_F, CUBE_C).color)(big)
+    ref = np.asarray(fine).reshape(H, 8, W, 8, 3).mean((1, 3))
+    bg = tri < 0
+    sil = np.zeros(bg.shape, bool)  # both pixels of every pair across the outline
+    for d, a, b in (
+        (bg[:, 1:] != bg[:, :-1], np.s_[:, 1:], np.s_[:, :-1]),
+        (bg[1:] != bg[:-1], np.s_[1:], np.s_[:-1]),
+    ):
+        sil[a] |= d
+        sil[b] |= d
+    raw_err = np.abs(color - ref)[sil].mean()
+    aa_err = np.abs(aa - ref)[sil].mean()
+    assert sil.sum() > 50 and aa_err <= AA_GAIN * raw_err, (raw_err, aa_err)
 
 
 def _fd_agreement(dcam, dv, step=FD_STEP):
@@ -244,7 +274,10 @@ def test_vmap_over_cameras_equals_loop():
     cams = [CUBE_CAM, look_at([-1.5, 0.8, -2.2], [0.0, 0.0, 0.0], fov=45.0, width=W, height=H)]
     outs = [_render(c, CUBE_V, CUBE_F, CUBE_C, CUBE_E) for c in cams]
     stack = lambda *xs: jnp.stack(xs)  # noqa: E731
-    batched = jax.vmap(lambda c, o: analytic_antialias(c, CUBE_V, CUBE_F, o, edges=CUBE_E))(
+    aa_batch = jax.jit(
+        jax.vmap(lambda c, o: analytic_antialias(c, CUBE_V, CUBE_F, o, edges=CUBE_E))
+    )
+    batched = aa_batch(
         jax.tree_util.tree_map(stack, *cams), jax.tree_util.tree_map(stack, *(o for _, o in outs))
     )
     for i, (aa, _) in enumerate(outs):
