@@ -48,7 +48,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx.camera import Camera, screen_to_camera, validate_camera, world_to_camera
+from jaxgfx.camera import (
+    Camera,
+    focal_lengths,
+    screen_to_camera,
+    validate_camera,
+    world_to_camera,
+)
 from jaxgfx.raster import RasterOutput, validate_mesh
 
 __all__ = ["silhouette_edges", "analytic_antialias"]
@@ -103,52 +109,79 @@ def silhouette_edges(faces) -> np.ndarray:
     return out
 
 
-def _pair_deltas(ray_a, ray_b, id_a, id_b, depth_a, depth_b, col_a, col_b, p_cam, faces, edges):
+def _face_planes(p_cam, faces, opposite):
+    """Per face and edge: the inward normal of the edge's eye plane, and whether it may blend.
+
+    Args:
+        p_cam: (V, 3) camera-space vertices; faces (F, 3); opposite (F, 3) from
+            :func:`silhouette_edges`.
+
+    Returns:
+        ``(normal (F, 3 edges, 3), silhouette (F, 3) bool)``; the normal is
+        oriented so that the face's own third vertex has a positive dot product,
+        and is zero for a face seen edge-on (then no pixel is inside).
+    """
+    pts = p_cam[faces]  # (F, 3 corners, 3)
+    normals, sils = [], []
+    for e in range(3):
+        p, q, k = pts[:, e], pts[:, (e + 1) % 3], pts[:, (e + 2) % 3]
+        n = jnp.cross(p, q)  # normal of the plane through the eye and the edge
+        m = jnp.sign(jnp.sum(n * k, -1))[:, None] * n
+        across = p_cam[jnp.maximum(opposite[:, e], 0)]
+        # The neighbour folds back when its far vertex lies on the face's own side.
+        folds = jnp.sum(m * across, -1) >= 0
+        normals.append(m)
+        sils.append((opposite[:, e] < 0) | folds)
+    return jnp.stack(normals, 1), jnp.stack(sils, 1)
+
+
+def _exit(inside, step, sil) -> tuple[jax.Array, jax.Array]:
+    """Where the segment from a pixel centre to a neighbour's leaves the pixel's triangle.
+
+    Args:
+        inside: (..., 3) per edge, the inward plane normal dotted with the pixel's
+            ray (>= 0 inside the edge).
+        step: (..., 3) its change from this ray to the neighbour's.
+        sil: (..., 3) bool, the edge may blend.
+
+    Returns:
+        ``(t, blend)``: the crossing in [0, 1) (1 when the neighbour is inside
+        all edges) and whether the edge crossed first is a silhouette edge.
+    """
+    best_t = jnp.ones(inside.shape[:-1], inside.dtype)
+    best_sil = jnp.zeros(inside.shape[:-1], bool)
+    for e in range(3):
+        a, d = inside[..., e], step[..., e]
+        cross = (a >= 0) & (a + d < 0)
+        # Double where: the untaken branch divides by 1, so its gradient is finite.
+        t = jnp.where(cross, a / jnp.where(cross, -d, 1.0), 1.0)
+        # The segment leaves the (convex) triangle through the edge it crosses first.
+        take = cross & (t < best_t)
+        best_t = jnp.where(take, t, best_t)
+        best_sil = jnp.where(take, sil[..., e], best_sil)
+    return best_t, best_sil
+
+
+def _pair_deltas(ta, sa, tb, sb, id_a, id_b, depth_a, depth_b, col_a, col_b):
     """Colour changes of the two pixels of each pair (arrays of pairs, any shape).
 
     Args:
-        ray_a, ray_b: (..., 3) camera-space rays through the two pixel centres (z = 1).
+        ta, sa: (...) :func:`_exit` of pixel a's triangle towards b; tb, sb the same from b.
         id_a, id_b: (...) triangle ids (-1 empty); depth_a, depth_b: (...) depths.
         col_a, col_b: (..., C) colours.
-        p_cam: (V, 3) camera-space vertices; faces (F, 3); edges (F, 3) opposite vertices.
 
     Returns:
         ``(delta_a, delta_b)``, each (..., C).
     """
     # The front triangle is the nearer one; an empty pixel is never in front.
     a_front = (id_a >= 0) & ((id_b < 0) | (depth_a <= depth_b))
-    front = jnp.where(a_front, id_a, id_b)
-    active = (id_a != id_b) & (front >= 0)
-    fid = jnp.maximum(front, 0)
-    ray_f = jnp.where(a_front[..., None], ray_a, ray_b)
-    ray_o = jnp.where(a_front[..., None], ray_b, ray_a)
-    corners = faces[fid]  # (..., 3)
-    opp = edges[fid]  # (..., 3)
-    pts = p_cam[corners]  # (..., 3 corners, 3)
-    best_t = jnp.ones(fid.shape, p_cam.dtype)
-    best_sil = jnp.zeros(fid.shape, bool)
-    for e in range(3):
-        p, q, k = pts[..., e, :], pts[..., (e + 1) % 3, :], pts[..., (e + 2) % 3, :]
-        n = jnp.cross(p, q)  # normal of the plane through the eye and the edge
-        side = jnp.sum(n * k, -1)  # the front triangle lies on this side
-        s = jnp.sign(side)
-        a = s * jnp.sum(n * ray_f, -1)  # >= 0: F inside this edge
-        b = s * jnp.sum(n * ray_o, -1)  # < 0: O outside this edge
-        cross = (side != 0) & (a >= 0) & (b < 0)
-        # Double where: the untaken branch divides by 1, so its gradient is finite.
-        t = jnp.where(cross, a / jnp.where(cross, a - b, 1.0), 1.0)
-        across = p_cam[jnp.maximum(opp[..., e], 0)]
-        folds = s * jnp.sum(n * across, -1) >= 0  # the neighbour lies on the same side
-        sil = (opp[..., e] < 0) | folds
-        # The segment F -> O leaves the (convex) triangle through the edge it crosses first.
-        take = cross & (t < best_t)
-        best_t = jnp.where(take, t, best_t)
-        best_sil = jnp.where(take, sil, best_sil)
-    blend = active & best_sil & (best_t < 1.0)
+    active = (id_a != id_b) & ((id_a >= 0) | (id_b >= 0))
+    t = jnp.where(a_front, ta, tb)
+    blend = active & jnp.where(a_front, sa, sb) & (t < 1.0)
     col_f = jnp.where(a_front[..., None], col_a, col_b)
     col_o = jnp.where(a_front[..., None], col_b, col_a)
-    w_o = jnp.where(blend, jnp.maximum(best_t - 0.5, 0.0), 0.0)[..., None]
-    w_f = jnp.where(blend, jnp.maximum(0.5 - best_t, 0.0), 0.0)[..., None]
+    w_o = jnp.where(blend, jnp.maximum(t - 0.5, 0.0), 0.0)[..., None]
+    w_f = jnp.where(blend, jnp.maximum(0.5 - t, 0.0), 0.0)[..., None]
     d_f = w_f * (col_o - col_f)
     d_o = w_o * (col_f - col_o)
     delta_a = jnp.where(a_front[..., None], d_f, d_o)
@@ -216,6 +249,7 @@ def analytic_antialias(
     if faces.shape[0] == 0:
         return color
     p_cam = world_to_camera(cam, vertices)
+    fx, fy = focal_lengths(cam)
     xs, ys = screen_to_camera(
         cam, jnp.arange(w, dtype=jnp.float32) + 0.5, jnp.arange(h, dtype=jnp.float32) + 0.5
     )
@@ -224,20 +258,29 @@ def analytic_antialias(
     tri = raster_out.tri_id
     # Depth only orders the pair; the blend's gradient comes from the edge.
     depth = jax.lax.stop_gradient(raster_out.depth)
-    out = color
-
-    def pairs(sl_a, sl_b):
-        return _pair_deltas(
-            rays[sl_a], rays[sl_b], tri[sl_a], tri[sl_b], depth[sl_a], depth[sl_b],
-            color[sl_a], color[sl_b], p_cam, faces, opposite,
-        )  # fmt: skip
-
+    # Per-face planes once (F-sized), then one gather per pixel shared by its four pairs.
+    normals, sils = _face_planes(p_cam, faces, opposite)
+    packed = jnp.concatenate([normals.reshape(-1, 9), sils.astype(normals.dtype)], 1)
+    per_px = packed[jnp.maximum(tri, 0)]  # (H, W, 12): one gather
+    m = per_px[..., :9].reshape(h, w, 3, 3)  # (H, W, 3 edges, 3)
+    sil = per_px[..., 9:] > 0.5  # (H, W, 3)
+    inside = jnp.sum(m * rays[:, :, None, :], -1)  # (H, W, 3)
+    # Neighbouring rays differ by (1 / fx, 0, 0) along a row and (0, -1 / fy, 0) down a column.
+    step_x, step_y = m[..., 0] / fx, -m[..., 1] / fy
+    right = _exit(inside[:, :-1], step_x[:, :-1], sil[:, :-1])
+    left = _exit(inside[:, 1:], -step_x[:, 1:], sil[:, 1:])
+    down = _exit(inside[:-1], step_y[:-1], sil[:-1])
+    up = _exit(inside[1:], -step_y[1:], sil[1:])
+    cols = color.shape[-1]
     # Horizontal pairs (x, x + 1), then vertical pairs (y, y + 1).
-    all_ = slice(None)
-    da, db = pairs((all_, slice(0, w - 1)), (all_, slice(1, w)))
-    zero_col = jnp.zeros((h, 1, color.shape[-1]), color.dtype)
-    out = out + jnp.concatenate([da, zero_col], 1) + jnp.concatenate([zero_col, db], 1)
-    da, db = pairs((slice(0, h - 1), all_), (slice(1, h), all_))
-    zero_row = jnp.zeros((1, w, color.shape[-1]), color.dtype)
-    out = out + jnp.concatenate([da, zero_row], 0) + jnp.concatenate([zero_row, db], 0)
-    return out
+    da, db = _pair_deltas(
+        *right, *left, tri[:, :-1], tri[:, 1:], depth[:, :-1], depth[:, 1:],
+        color[:, :-1], color[:, 1:],
+    )  # fmt: skip
+    zero_col = jnp.zeros((h, 1, cols), color.dtype)
+    out = color + jnp.concatenate([da, zero_col], 1) + jnp.concatenate([zero_col, db], 1)
+    da, db = _pair_deltas(
+        *down, *up, tri[:-1], tri[1:], depth[:-1], depth[1:], color[:-1], color[1:]
+    )
+    zero_row = jnp.zeros((1, w, cols), color.dtype)
+    return out + jnp.concatenate([da, zero_row], 0) + jnp.concatenate([zero_row, db], 0)
