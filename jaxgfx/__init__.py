@@ -11,7 +11,8 @@ Every chapter keeps all of its public functions in its face module, one import a
 
 The engine (ch. 2) is in ``jaxgfx.camera`` (one camera for every pass), ``jaxgfx.raster``
 (the z-buffer rasterizer), ``jaxgfx.compose`` (depth compositing, sky, fog, lighting),
-``jaxgfx.post`` (screen-space normals, AO, anti-aliasing), ``jaxgfx.io``, ``jaxgfx.scene``
+``jaxgfx.post`` (screen-space normals, AO, anti-aliasing), ``jaxgfx.silhouette``
+(differentiable silhouettes: analytic antialiasing), ``jaxgfx.io``, ``jaxgfx.scene``
 (passes joined into one frame) and ``jaxgfx.sweep`` (batched, sharded, resumable sweeps;
 a module: its entry points are :func:`run_sweep` and :func:`load_sweep`).  Implementation
 modules live in the private package ``jaxgfx._src``.
@@ -19,7 +20,19 @@ modules live in the private package ``jaxgfx._src``.
 
 __version__ = "0.1.0"
 
-from jaxgfx import camera, compose, io, post, raster, raycast, scene, skin, sweep, terrain
+from jaxgfx import (
+    camera,
+    compose,
+    io,
+    post,
+    raster,
+    raycast,
+    scene,
+    silhouette,
+    skin,
+    sweep,
+    terrain,
+)
 from jaxgfx.camera import (
     Camera,
     camera_from_degrees,
@@ -54,6 +67,7 @@ from jaxgfx.raycast import (
 )
 from jaxgfx.scene import MeshPass, mesh_pass, render_frame, render_mesh_pass
 from jaxgfx.showcase import build_demo
+from jaxgfx.silhouette import analytic_antialias
 from jaxgfx.skin import (
     SplinePose,
     SplineRig,
@@ -105,6 +119,7 @@ __all__ = [
     "pixel_rays",
     # rasterizer
     "rasterize",
+    "analytic_antialias",
     "RasterOutput",
     "interpolate",
     "vertex_normals",
@@ -193,6 +208,7 @@ __all__ = [
     "raster",
     "compose",
     "post",
+    "silhouette",
     "io",
     "scene",
     "sweep",
