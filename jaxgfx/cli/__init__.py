@@ -20,12 +20,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from jaxgfx.cli import demo, info, render, skin, terrain, voxels
+from jaxgfx.cli import demo, flythrough, info, render, skin, terrain, voxels
 from jaxgfx.cli.args import CliError, join_negative_values
 
 __all__ = ["main", "build_parser", "COMMANDS", "cache_dir", "enable_compilation_cache"]
 
-COMMANDS = (demo, render, info, voxels, terrain, skin)
+COMMANDS = (demo, render, info, voxels, terrain, flythrough, skin)
 
 
 def cache_dir(environ: Mapping[str, str] | None = None) -> Path:
