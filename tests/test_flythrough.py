@@ -94,6 +94,7 @@ def test_cli_flythrough_errors(tmp_path, capsys):
         (["--out", gif, "--frames", "0"], "--frames"),
         (["--out", gif, "--path", "1,2"], "--path"),
         (["--out", gif, "--path", "1,2,3,1,2,3"], "--path"),
+        (["--out", gif, "--path", "0,50,0,1e12,50,0"], "--path"),
         (["--out", gif, "--cell", "2"], "--cell"),
         (["--out", gif, "--resolution", "12"], "--resolution"),
         (["--out", gif, "--pitch", "95"], "--pitch"),

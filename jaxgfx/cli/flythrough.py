@@ -72,6 +72,8 @@ def parse_path(text: str) -> np.ndarray:
             f"expected x,y,z,x,y,z,... (finite numbers, a multiple of 3), got {text!r}"
         )
     pts = np.asarray(vals, np.float64).reshape(-1, 3)
+    if np.abs(pts).max() > 2**30:  # the boxes around the camera must fit in int32 too
+        raise argparse.ArgumentTypeError(f"waypoints must be within +-2^30 voxels, got {text!r}")
     if len(pts) < 2 or not np.any(np.abs(np.diff(pts, axis=0)) > 0):
         raise argparse.ArgumentTypeError(f"needs at least two different waypoints, got {text!r}")
     return pts
