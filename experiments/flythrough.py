@@ -21,6 +21,7 @@ import numpy as np
 
 from experiments.common import machine, write_table
 from jaxgfx import terrain as T
+from jaxgfx.cli.args import CliError
 from jaxgfx.cli.flythrough import check_clearance, default_path, fly, path_frames
 from jaxgfx.cli.terrain import VIEWS
 
@@ -41,6 +42,22 @@ def main(argv=None) -> int:
     # for one outer-box half-width (about one voxel per frame), clear of the rocks
     reach = n * (1 << (levels - 1)) // 2
     waypoints, pitch = default_path(csg, "csg", reach)
+    if args.quick:
+        # the quick boxes reach only 64 voxels: fly low over the ground plane (top at
+        # y = -1), as low as the rocks on the track allow, so the boxes fill the view
+        for y in range(12, int(waypoints[0, 1]), 4):
+            pos, yaws = path_frames(
+                np.column_stack([waypoints[:, 0], np.full(len(waypoints), y), waypoints[:, 2]]),
+                frames,
+            )
+            try:
+                check_clearance(csg, pos, option="path")
+                waypoints = np.column_stack(
+                    [waypoints[:, 0], np.full(len(waypoints), y), waypoints[:, 2]]
+                )
+                break
+            except CliError:
+                continue
     pos, yaws = path_frames(waypoints, frames)
     check_clearance(csg, pos, option="path")
     speed = float(np.linalg.norm(pos[-1] - pos[0])) / max(frames - 1, 1)
@@ -62,7 +79,7 @@ def main(argv=None) -> int:
         size=(w, h),
         fov=60.0,
         height_range=VIEWS["csg"][2],
-        fog_distance=2.0 * reach,  # the quick boxes are small: fog at the box edge hides all
+        fog_distance=float(reach),  # the box edge fades into the horizon
         snow_line=0.8,
         wait=False,  # Fig. 3.18: the renderer never waits for the geometry thread
         progress=False,
