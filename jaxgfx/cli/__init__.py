@@ -26,7 +26,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from jaxgfx.cli import demo, info, render, skin, terrain, voxels
+from jaxgfx.cli import demo, flythrough, info, render, skin, terrain, voxels
 from jaxgfx.cli.args import CliError, join_negative_values
 
 __all__ = [
@@ -41,7 +41,7 @@ __all__ = [
 
 _COUNT_FLAG = "--xla_force_host_platform_device_count"
 
-COMMANDS = (demo, render, info, voxels, terrain, skin)
+COMMANDS = (demo, render, info, voxels, terrain, flythrough, skin)
 
 
 def cache_dir(environ: Mapping[str, str] | None = None) -> Path:

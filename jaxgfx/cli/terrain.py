@@ -22,7 +22,16 @@ from jaxgfx.cli.args import (
     positive_int,
 )
 
-__all__ = ["register", "run", "make_terrain"]
+__all__ = [
+    "register",
+    "run",
+    "make_terrain",
+    "add_source_arguments",
+    "check_source_args",
+    "terrain_from_args",
+    "color_heights",
+    "snow_line",
+]
 
 FUNCTIONS = ("csg", "xor", "saw", "sin", "heightmap:PATH")
 MESH_SUFFIXES = (".ply", ".glb", ".obj", ".stl", ".off")
@@ -37,9 +46,8 @@ def check_args(args) -> None:
         check_out_file("--depth", args.depth, (".npy",))
     if args.mesh:
         check_out_file("--mesh", args.mesh, MESH_SUFFIXES)
+    check_source_args(args)
     n, levels = args.resolution, args.levels
-    if n < 8 or n % 8:
-        raise CliError(f"--resolution must be a multiple of 8 and >= 8, got {n}")
     if args.mesh_level is not None:
         if args.mesh is None:
             raise CliError("--mesh-level needs --mesh")
@@ -48,6 +56,17 @@ def check_args(args) -> None:
                 f"--mesh-level must be in [0, {levels - 1}] with --levels {levels}, "
                 f"got {args.mesh_level}"
             )
+    w, h = args.size
+    need = float(levels) * (n + 2) ** 3 * VOXEL_BYTES + float(w) * h * PIXEL_BYTES
+    check_memory("--resolution", f"{n} (with --levels {levels}, --size {w}x{h})", need)
+
+
+def check_source_args(args) -> None:
+    """Checks the options :func:`add_source_arguments` adds (no JAX): --resolution and the
+    height-map-only flags."""
+    n = args.resolution
+    if n < 8 or n % 8:
+        raise CliError(f"--resolution must be a multiple of 8 and >= 8, got {n}")
     if not args.function.startswith("heightmap:"):
         for flag, given in (
             ("--cell", args.cell is not None),
@@ -56,9 +75,17 @@ def check_args(args) -> None:
         ):
             if given:
                 raise CliError(f"{flag} applies to --function heightmap:PATH only")
-    w, h = args.size
-    need = float(levels) * (n + 2) ** 3 * VOXEL_BYTES + float(w) * h * PIXEL_BYTES
-    check_memory("--resolution", f"{n} (with --levels {levels}, --size {w}x{h})", need)
+
+
+def terrain_from_args(args):
+    """:func:`make_terrain` from the options :func:`add_source_arguments` adds."""
+    return make_terrain(
+        args.function,
+        seed=args.seed,
+        vertical_scale=args.vertical_scale,
+        cell=args.cell,
+        wrap=args.wrap,
+    )
 
 
 def make_terrain(
@@ -153,7 +180,7 @@ def parse_snow_line(text: str) -> float | str | None:
     return value
 
 
-def _snow_line(args) -> float | None:
+def snow_line(args) -> float | None:
     """--snow-line, or the default: 0.8 of the relief, none for images (no altitude)."""
     if args.snow_line != "auto":
         return float(args.snow_line) if args.snow_line is not None else None
@@ -162,22 +189,31 @@ def _snow_line(args) -> float | None:
     return None if image else 0.8
 
 
-def _view(args, terrain):
-    """(viewer, (yaw, pitch), world height range) for ``args``, defaults by function."""
+def color_heights(terrain, function: str) -> tuple[float, float]:
+    """World y range of the colour bands: a height map's base to its top, else the
+    range :data:`VIEWS` gives the function."""
     import numpy as np
 
     from jaxgfx import terrain as T
 
     if isinstance(terrain, T.HeightmapTerrain):
-        m = terrain.mapping
         relief = float(np.max(np.asarray(terrain.heights)))
+        return (terrain.mapping.base, terrain.mapping.base + max(relief, 1.0))
+    return VIEWS[function][2]
+
+
+def _view(args, terrain):
+    """(viewer, (yaw, pitch), world height range) for ``args``, defaults by function."""
+    from jaxgfx import terrain as T
+
+    if isinstance(terrain, T.HeightmapTerrain):
         viewer = T.default_viewer(terrain) if args.viewer is None else args.viewer
         reach = args.resolution * (1 << (args.levels - 1)) // 2
         camera = (best_yaw(terrain, viewer, reach), HEIGHTMAP_PITCH)
-        heights = (m.base, m.base + max(relief, 1.0))
     else:
-        viewer, camera, heights = VIEWS[args.function]
+        viewer, camera, _ = VIEWS[args.function]
         viewer = viewer if args.viewer is None else args.viewer
+    heights = color_heights(terrain, args.function)
     camera = camera if args.camera is None else tuple(args.camera)
     return tuple(int(v) for v in viewer), camera, heights
 
@@ -194,13 +230,7 @@ def run(args) -> int:
     from jaxgfx.io import save_mesh, save_npy, save_png
     from jaxgfx.raster import rasterize
 
-    terrain = make_terrain(
-        args.function,
-        seed=args.seed,
-        vertical_scale=args.vertical_scale,
-        cell=args.cell,
-        wrap=args.wrap,
-    )
+    terrain = terrain_from_args(args)
     viewer, (yaw, pitch), heights = _view(args, terrain)
     if not (args.viewer is None and args.function in INSIDE_BY_DEFAULT):
         try:
@@ -226,7 +256,7 @@ def run(args) -> int:
         viewer,
         height_range=heights,
         fog_distance=float(args.fog * reach) if args.fog > 0 else None,
-        snow_line=_snow_line(args),
+        snow_line=snow_line(args),
         rasterize_fn=jax.jit(rasterize),
     )
     jax.block_until_ready(frame)
@@ -254,61 +284,17 @@ def run(args) -> int:
     return 0
 
 
-def register(subparsers) -> None:
-    """Adds ``jaxgfx terrain`` to the CLI's subparsers."""
-    p = subparsers.add_parser(
-        "terrain",
-        help="procedural volumetric terrain with nested Clip-Boxes (thesis ch. 3)",
-        description=(
-            "Samples a terrain function around an integer viewer into nested Clip-Boxes, "
-            "converts them to welded, smoothed meshes and renders them shaded by slope and "
-            "height, with fog to the horizon and a sky.  Prints one JSON line: for a height "
-            "map the mapping (sample (r, c) with value v stands at x = origin_x + (c + 0.5) "
-            "cell, z = origin_z + (r + 0.5) cell, y = base + (v - min) vertical_scale), "
-            "the viewer, the camera, triangles and timings."
-        ),
-    )
+def add_source_arguments(p) -> None:
+    """The terrain-source, Clip-Box and shading options ``terrain`` and ``flythrough`` share:
+    --function (with --seed, --vertical-scale, --cell, --wrap), --resolution, --levels,
+    --smoothing, --fov, --snow-line and --fog; check them with :func:`check_source_args`."""
     p.add_argument("--function", default="csg", help=f"one of {', '.join(FUNCTIONS)}")
-    p.add_argument(
-        "--viewer",
-        type=parse_ints(3, "x,y,z"),
-        default=None,
-        help="x,y,z integer voxels (y up); default: a view that suits --function "
-        "(height maps: above the map centre)",
-    )
-    p.add_argument(
-        "--allow-inside",
-        action="store_true",
-        help="render even when --viewer is inside solid ground (warns instead of failing)",
-    )
     p.add_argument(
         "--resolution", type=positive_int, default=64, help="N voxels per box edge (multiple of 8)"
     )
     p.add_argument("--levels", type=positive_int, default=5, help="number of nested boxes L >= 1")
-    p.add_argument("--out", default="terrain.png", help="output PNG")
-    p.add_argument(
-        "--depth", default=None, help="write camera-space depth (+inf = sky) to this .npy"
-    )
-    p.add_argument(
-        "--camera",
-        type=parse_floats(2, "yaw,pitch"),
-        default=None,
-        help="yaw,pitch in degrees (yaw 0 looks along +z); default suits --function",
-    )
-    p.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
     p.add_argument(
         "--fov", type=parse_fov, default=60.0, help="vertical field of view, degrees in (0, 180)"
-    )
-    p.add_argument(
-        "--mesh",
-        default=None,
-        help=f"export the mesh, the levels welded into one surface ({', '.join(MESH_SUFFIXES)})",
-    )
-    p.add_argument(
-        "--mesh-level",
-        type=nonnegative_int,
-        default=None,
-        help="export only this level, 0 (innermost) .. L-1",
     )
     p.add_argument(
         "--smoothing", type=nonnegative_int, default=4, help="vertex-averaging iterations"
@@ -345,4 +331,55 @@ def register(subparsers) -> None:
         help="fog distance in outer-box half-widths (1: the box edge fades into the "
         "horizon; 0: no fog, e.g. for views from above)",
     )
+
+
+def register(subparsers) -> None:
+    """Adds ``jaxgfx terrain`` to the CLI's subparsers."""
+    p = subparsers.add_parser(
+        "terrain",
+        help="procedural volumetric terrain with nested Clip-Boxes (thesis ch. 3)",
+        description=(
+            "Samples a terrain function around an integer viewer into nested Clip-Boxes, "
+            "converts them to welded, smoothed meshes and renders them shaded by slope and "
+            "height, with fog to the horizon and a sky.  Prints one JSON line: for a height "
+            "map the mapping (sample (r, c) with value v stands at x = origin_x + (c + 0.5) "
+            "cell, z = origin_z + (r + 0.5) cell, y = base + (v - min) vertical_scale), "
+            "the viewer, the camera, triangles and timings."
+        ),
+    )
+    p.add_argument(
+        "--viewer",
+        type=parse_ints(3, "x,y,z"),
+        default=None,
+        help="x,y,z integer voxels (y up); default: a view that suits --function "
+        "(height maps: above the map centre)",
+    )
+    p.add_argument(
+        "--allow-inside",
+        action="store_true",
+        help="render even when --viewer is inside solid ground (warns instead of failing)",
+    )
+    p.add_argument("--out", default="terrain.png", help="output PNG")
+    p.add_argument(
+        "--depth", default=None, help="write camera-space depth (+inf = sky) to this .npy"
+    )
+    p.add_argument(
+        "--camera",
+        type=parse_floats(2, "yaw,pitch"),
+        default=None,
+        help="yaw,pitch in degrees (yaw 0 looks along +z); default suits --function",
+    )
+    p.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
+    p.add_argument(
+        "--mesh",
+        default=None,
+        help=f"export the mesh, the levels welded into one surface ({', '.join(MESH_SUFFIXES)})",
+    )
+    p.add_argument(
+        "--mesh-level",
+        type=nonnegative_int,
+        default=None,
+        help="export only this level, 0 (innermost) .. L-1",
+    )
+    add_source_arguments(p)
     p.set_defaults(func=run)

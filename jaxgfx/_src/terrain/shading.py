@@ -118,6 +118,17 @@ def terrain_colors(
     return jnp.clip(c, 0.0, 1.0)
 
 
+_colors_jit = jax.jit(terrain_colors, static_argnames=("height_range", "snow_line", "rock_slope"))
+
+
+def _pad_pow2(a: np.ndarray, minimum: int = 1024) -> np.ndarray:
+    """``a`` with zero rows appended up to the next power of two >= ``minimum`` rows."""
+    cap = max(minimum, 1 << int(np.ceil(np.log2(max(a.shape[0], 1)))))
+    out = np.zeros((cap,) + a.shape[1:], a.dtype)
+    out[: a.shape[0]] = a
+    return out
+
+
 def render_terrain(
     cam,
     levels: Sequence[dict],
@@ -154,12 +165,15 @@ def render_terrain(
             raise ValueError(f"fog_distance must be > 0 or None, got {fog_distance}")
     anchor = np.asarray(anchor, np.int64)
     v, n, f, _ = level_arrays(levels, anchor)
-    if f.shape[0] == 0:
-        f = np.zeros((1, 3), np.int32)  # one degenerate triangle draws nothing
-        v, n = np.zeros((1, 3), np.float32), np.zeros((1, 3), np.float32)
+    # Padded to power-of-two lengths with unused vertices and degenerate (0, 0, 0)
+    # triangles, which draw nothing: frames of a flythrough then share a few compiled
+    # shapes instead of compiling the rasterizer once per triangle count.
+    v, n, f = _pad_pow2(v), _pad_pow2(n), _pad_pow2(f)
     # world positions for the colours (float32: exact enough for colour far out too)
     world = v + anchor.astype(np.float32)
-    colors = terrain_colors(world, n, height_range=height_range, snow_line=snow_line)
+    colors = _colors_jit(
+        world, n, height_range=tuple(float(h) for h in height_range), snow_line=snow_line
+    )
     fn = rasterize_fn if rasterize_fn is not None else jax.jit(rasterize)
     out = fn(cam, jnp.asarray(v), jnp.asarray(f), jnp.concatenate([colors, jnp.asarray(n)], -1))
     albedo, nrm = out.color[..., :3], out.color[..., 3:]
