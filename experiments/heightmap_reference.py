@@ -11,7 +11,7 @@ of it; the terrain/sky mask agreement; and the signed depth difference by depth 
 edge while the Clip-Box terrain goes on (clamped edges), so views that see past the edge
 lose mask agreement there.
 
-    python -m experiments.heightmap_reference --out out/heightmap_reference [--size 320x240] [--quick]
+    python -m experiments.heightmap_reference --out out/hr [--size 320x240] [--quick]
 """
 
 from __future__ import annotations
