@@ -67,6 +67,25 @@ def pattern_filter(voxels: jax.Array) -> jax.Array:
 # --------------------------------------------------------------------------------------
 
 
+def _relax(p, idx, deg, step_w, iterations: int):
+    """``iterations`` steps of ``p + step_w (sum of the six linked p - deg p)``.
+
+    ``idx`` (V, 6) are the links, a missing one pointing at row V: an appended zero row,
+    so each step is six plain gathers and adds, no masked (V, 6, 3) reduction (8x faster
+    on XLA:CPU).  A vertex with ``step_w = 0`` keeps its position.
+    """
+
+    def step(p, _):
+        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
+        total = pe[idx[:, 0]]
+        for k in range(1, 6):
+            total = total + pe[idx[:, k]]
+        return p + step_w * (total - deg * p), None
+
+    p, _ = jax.lax.scan(step, p, None, length=iterations)
+    return p
+
+
 def smooth_mesh(mesh: ClipBoxMesh, *, iterations: int = 4, weight: float = 0.5) -> ClipBoxMesh:
     """Smoothing by vertex averaging over the vertex-to-vertex links (3.4.7, Fig. 3.9).
 
@@ -82,23 +101,11 @@ def smooth_mesh(mesh: ClipBoxMesh, *, iterations: int = 4, weight: float = 0.5) 
     nb = mesh.neighbors
     v = nb.shape[0]
     has = nb >= 0
-    # Missing links read an appended zero row: six plain gathers and adds, no
-    # masked (V, 6, 3) reduction (8x faster on XLA:CPU).
-    idx = jnp.where(has, nb, v)
+    idx = jnp.where(has, nb, v)  # a missing link reads _relax's appended zero row
     deg = jnp.sum(has, axis=-1, keepdims=True).astype(jnp.float32)
     ok = deg > 0
     step_w = weight * jnp.where(ok, 1.0 / jnp.where(ok, deg, 1.0), 0.0)
-
-    def step(p, _):
-        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
-        total = pe[idx[:, 0]]
-        for k in range(1, 6):
-            total = total + pe[idx[:, k]]
-        # p + weight (mean - p); a vertex without links keeps p (step_w = 0).
-        return p + step_w * (total - deg * p), None
-
-    p, _ = jax.lax.scan(step, mesh.vertices, None, length=iterations)
-    return dataclasses.replace(mesh, vertices=p)
+    return dataclasses.replace(mesh, vertices=_relax(mesh.vertices, idx, deg, step_w, iterations))
 
 
 def mesh_normals(mesh: ClipBoxMesh) -> ClipBoxMesh:
@@ -145,14 +152,7 @@ def blend_seam(
     deg = jnp.sum(has, axis=-1, keepdims=True).astype(jnp.float32)
     step_w = jnp.where(free & (deg > 0), 0.8 / jnp.maximum(deg, 1.0), 0.0)
 
-    def step(p, _):
-        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
-        total = pe[idx[:, 0]]
-        for k in range(1, 6):
-            total = total + pe[idx[:, k]]
-        return p + step_w * (total - deg * p), None
-
-    p, _ = jax.lax.scan(step, m.vertices, None, length=iterations)
+    p = _relax(m.vertices, idx, deg, step_w, iterations)
     nrm = mesh_normals(dataclasses.replace(m, vertices=p)).normals
     # the ring keeps the outer mesh's normals (from weld_seam), so shading is seamless
     return dataclasses.replace(m, vertices=p, normals=jnp.where(ring[:, None], m.normals, nrm))
