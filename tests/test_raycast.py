@@ -348,3 +348,15 @@ def test_shared_columns_render_bit_identical():
     assert np.isfinite(np.asarray(a.depth)).mean() > 0.1
     np.testing.assert_array_equal(np.asarray(b.depth), np.asarray(a.depth))
     np.testing.assert_array_equal(np.asarray(b.color), np.asarray(a.color))
+
+
+def test_encoded_volume_closed_over_under_jit():
+    # The natural first try: encode inside the jitted function (NumPy buffers closed over)
+    # gives the frame of the as_jax path.
+    vox = V.procedural_tree(16, key=jax.random.key(0), depth=2)
+    cam = look_at([40, 20, -30], [8, 8, 8], fov=50, width=32, height=24)
+    closed = jax.jit(lambda c: RC.render_rle(V.encode_rle(vox), c))(cam)
+    passed = jax.jit(RC.render_rle)(V.as_jax(V.encode_rle(vox)), cam)
+    assert np.isfinite(np.asarray(passed.depth)).any()
+    np.testing.assert_array_equal(np.asarray(closed.depth), np.asarray(passed.depth))
+    np.testing.assert_array_equal(np.asarray(closed.color), np.asarray(passed.color))

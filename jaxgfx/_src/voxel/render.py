@@ -156,7 +156,9 @@ def render_rle(
     processed once per plane, never per pixel.
 
     Args:
-        rle: the scene (use :func:`~jaxgfx.raycast.as_jax` first for speed).
+        rle: the scene; NumPy buffers (from :func:`~jaxgfx.raycast.encode_rle`) work,
+            also closed over under ``jit``; :func:`~jaxgfx.raycast.as_jax` keeps them on
+            the device between calls.
         cam: camera; must not sit inside a solid voxel (see
             :func:`check_camera_outside`).
         settings: static :class:`RenderSettings` (None: the defaults).
@@ -176,6 +178,9 @@ def render_rle(
         raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
     if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
         raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
+    # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
+    # become constants here; device buffers pass through unchanged.
+    rle = jax.tree_util.tree_map(jnp.asarray, rle)
     if num_planes is None:
         num_planes = default_num_planes(cam.width, cam.height, oversample)
     if max_steps is None:
