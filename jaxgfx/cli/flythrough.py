@@ -210,10 +210,11 @@ def _wait_for_geometry(worker, pipe, viewer, timeout_s: float = 600.0) -> dict:
     """The worker's buffer once it has followed ``viewer`` (no box would move)."""
     t0 = time.perf_counter()
     while True:
-        g0 = worker.generation
-        caught_up = not pipe.plan(worker.state, viewer)
+        # A caught-up state makes no further update, so the buffer acquired next is its own.
+        g0, state = worker.published()
+        caught_up = not pipe.plan(state, viewer)
         buf = worker.acquire()
-        if caught_up and int(buf["stamp"][1]) == g0 == worker.generation:
+        if caught_up and int(buf["stamp"][1]) == g0:
             return buf
         if time.perf_counter() - t0 > timeout_s:
             raise RuntimeError("the geometry worker did not follow the camera in time")

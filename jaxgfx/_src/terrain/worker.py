@@ -71,6 +71,11 @@ class GeometryWorker:
             dst["generation"] = gen
         buf["stamp"][1] = gen  # ... and last
 
+    def published(self) -> tuple[int, NestedClipBoxes]:
+        """The newest written generation and its Clip-Box state, read together."""
+        with self._cv:
+            return self.generation, self.state
+
     def set_viewer(self, viewer) -> None:
         """Called by the renderer: where the geometry should follow."""
         self._viewer = self.pipeline._check_viewer(viewer)
@@ -94,10 +99,12 @@ class GeometryWorker:
                 if not stats:
                     time.sleep(0.001)
                     continue
-                self.state = state
                 gen = self.generation + 1
                 self._write(self._buffers[1 - self._front], state, gen)
                 with self._cv:
+                    # state and generation change together: published() never sees a
+                    # state whose buffer is not written yet.
+                    self.state = state
                     self.generation = gen
                     self.stats.append(stats)
                     self._sync = True
