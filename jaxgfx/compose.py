@@ -67,22 +67,23 @@ def composite(frames) -> Frame:
 
 
 def coverage(frames) -> jax.Array:
-    """Share of the frame each pass shows after compositing (ties go to the earlier pass).
+    """Share of the frame each pass shows after :func:`composite` (ties go to the earlier pass).
+
+    Where no pass drew (every depth +inf) the composite keeps the first frame, usually
+    the background pass, so that frame is counted there and the shares sum to one.
 
     Args:
-        frames: sequence of :class:`Frame` with equal shapes, in compositing order.
+        frames: non-empty sequence of :class:`Frame` with equal shapes, in compositing order.
 
     Returns:
-        (P,) float32: for each pass, the fraction of pixels where it has the nearest finite
-        depth; the rest of the frame (1 - sum) shows no pass (the background's +inf).
+        (P,) float32: for each pass, the fraction of pixels it shows.
     """
     frames = list(frames)
     if not frames:
         raise ValueError("coverage: frames must be a non-empty sequence")
-    depth = jnp.stack([f.depth for f in frames])
-    nearest = jnp.argmin(depth, axis=0)  # the first minimum: ties go to the earlier pass
-    hit = jnp.isfinite(jnp.min(depth, axis=0))
-    onehot = (nearest[None] == jnp.arange(len(frames))[:, None, None]) & hit[None]
+    # argmin takes the first minimum, as composite_pair keeps its base on a tie.
+    nearest = jnp.argmin(jnp.stack([f.depth for f in frames]), axis=0)
+    onehot = nearest[None] == jnp.arange(len(frames))[:, None, None]
     return jnp.mean(onehot.astype(jnp.float32), axis=(1, 2))
 
 

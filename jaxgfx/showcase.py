@@ -254,7 +254,8 @@ class Demo(NamedTuple):
         placements: every object standing on the terrain (:class:`Placement`).
         terrain_fn: the terrain function the objects were placed on.
         y_range: heights :func:`column_top` scans for that terrain.
-        animate: ``phase in [0, 1) -> character Frame`` (the GIF's walking fox), jitted.
+        animate: ``(camera, phase in [0, 1)) -> character Frame`` (the GIF's walk; the
+            character pass itself, built from jitted steps).
         credits: data credits to print with the images.
     """
 
@@ -349,7 +350,7 @@ def build_demo(
     first_build = time.perf_counter() - t0  # includes tracing and compiling every step
 
     objects, places, obj_desc = forest_and_props(ground, stage[[0, 2]], key=k_trees, data=root)
-    character, ch_place, ch_desc, animate = _character(root, ground, stage, fwd)
+    character, ch_place, ch_desc = _character(root, ground, stage, fwd)
     places = places + [ch_place]
     render = jax.jit(render_mesh_pass)
     passes = [
@@ -374,7 +375,7 @@ def build_demo(
         ),
         (
             "character pass (skinning + spline tail with style + rasterizer)",
-            character[0],
+            character,
             (cam, 0.0),
             None,
         ),
@@ -396,7 +397,7 @@ def build_demo(
         )
         if used
     )
-    return Demo(cam, passes, comp, desc, places, tfn, y_range, animate, credits)
+    return Demo(cam, passes, comp, desc, places, tfn, y_range, character, credits)
 
 
 # --------------------------------------------------------------------------------------
@@ -454,7 +455,8 @@ def fox_character(path, at_xz, heading, scale: float = 0.9) -> FoxCharacter:
 
 
 def _character(root: Path | None, ground: GroundPatch, stage: np.ndarray, fwd: np.ndarray):
-    """The character pass, its placement, a description and the animation for the GIF."""
+    """``(frame(cam, phase) -> Frame, Placement, description)``: the character pass, which
+    also animates the GIF's walk."""
     from jaxgfx.scene import character_pose, demo_character_pass
 
     side = np.array([fwd[2], -fwd[0]])  # walks across the view
@@ -518,4 +520,4 @@ def _character(root: Path | None, ground: GroundPatch, stage: np.ndarray, fwd: n
 
     p0, _ = world(0.0)
     place = Placement("character", "mesh", _bottom_vertices(p0, 0.05), 1.0)
-    return (frame, (None, 0.0), None), place, desc, frame
+    return frame, place, desc

@@ -7,6 +7,7 @@ import tempfile
 from pathlib import Path
 
 import jax
+import numpy as np
 import pytest
 
 DATA = Path(
@@ -72,3 +73,13 @@ class CompileCounter:
 def compile_counter() -> type[CompileCounter]:
     """``with compile_counter() as c: ...; assert c.count == 0`` checks nothing recompiled."""
     return CompileCounter
+
+
+@pytest.fixture
+def hill(tmp_path) -> tuple[np.ndarray, Path]:
+    """A 20 x 24 Gaussian hill (grey levels 10..40) and the .npy file holding it."""
+    z, x = np.mgrid[0:20, 0:24]
+    h = 10 + 30 * np.exp(-((x - 14.0) ** 2 + (z - 8.0) ** 2) / 40.0)
+    path = tmp_path / "hill.npy"
+    np.save(path, h)
+    return h, path

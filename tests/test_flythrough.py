@@ -16,15 +16,6 @@ from jaxgfx.cli.flythrough import MARGIN, default_path, path_frames
 TINY = ["--resolution", "16", "--levels", "2", "--size", "32x24", "--smoothing", "2"]
 
 
-def _hill(tmp_path):
-    """A 20 x 24 Gaussian hill (grey levels 10..40) saved as .npy."""
-    z, x = np.mgrid[0:20, 0:24]
-    h = 10 + 30 * np.exp(-((x - 14.0) ** 2 + (z - 8.0) ** 2) / 40.0)
-    path = tmp_path / "hill.npy"
-    np.save(path, h)
-    return h, path
-
-
 def test_path_frames_even_speed_and_heading():
     wp = np.array([[0.0, 5.0, 0.0], [30.0, 5.0, 0.0], [30.0, 5.0, 30.0]])
     pos, yaw = path_frames(wp, 7)
@@ -37,8 +28,8 @@ def test_path_frames_even_speed_and_heading():
     assert np.all(np.diff(yaw) <= 1e-9)  # turns smoothly, one way
 
 
-def test_default_heightmap_path_stays_above_the_ground(tmp_path):
-    h, _ = _hill(tmp_path)
+def test_default_heightmap_path_stays_above_the_ground(hill, tmp_path):
+    h, _ = hill
     t = T.heightmap_terrain(h, cell=2, vertical_scale=0.5)
     wp, pitch = default_path(t, "heightmap:hill.npy", 16)
     pos, _ = path_frames(wp, 40)
@@ -61,10 +52,10 @@ def test_default_heightmap_path_stays_above_the_ground(tmp_path):
     assert pos[0, 2] > 0 > pos[-1, 2]
 
 
-def test_cli_flythrough_heightmap_writes_film_and_tables(tmp_path, capsys):
+def test_cli_flythrough_heightmap_writes_film_and_tables(hill, tmp_path, capsys):
     import imageio.v3 as iio
 
-    _, path = _hill(tmp_path)
+    _, path = hill
     out, still = tmp_path / "fly.gif", tmp_path / "still.png"
     fn = ["--function", f"heightmap:{path}", "--cell", "2", "--vertical-scale", "0.5"]
     args = ["flythrough", *TINY, *fn, "--frames", "3", "--out", str(out), "--still", str(still)]
@@ -84,10 +75,10 @@ def test_cli_flythrough_heightmap_writes_film_and_tables(tmp_path, capsys):
     assert summary["frames"] == 3 and summary["out"] == str(out)
 
 
-def test_cli_flythrough_errors(tmp_path, capsys):
-    _, hill = _hill(tmp_path)
+def test_cli_flythrough_errors(hill, tmp_path, capsys):
+    _, hill_npy = hill
     gif = str(tmp_path / "f.gif")
-    fn = ["--function", f"heightmap:{hill}", "--cell", "2", "--vertical-scale", "0.5"]
+    fn = ["--function", f"heightmap:{hill_npy}", "--cell", "2", "--vertical-scale", "0.5"]
     cases = [
         (["--out", str(tmp_path / "f.png")], "--out"),
         (["--out", gif, "--still", str(tmp_path / "s.jpg")], "--still"),

@@ -887,22 +887,13 @@ def test_cli_terrain_errors(tmp_path, capsys):
     assert not (tmp_path / "a.png").exists()
 
 
-def _hill(tmp_path):
-    """A 20 x 24 Gaussian hill (grey levels 10..40) saved as .npy."""
-    z, x = np.mgrid[0:20, 0:24]
-    h = 10 + 30 * np.exp(-((x - 14.0) ** 2 + (z - 8.0) ** 2) / 40.0)
-    path = tmp_path / "hill.npy"
-    np.save(path, h)
-    return h, path
-
-
-def test_cli_terrain_heightmap_renders_prints_its_mapping_and_exports(tmp_path, capsys):
+def test_cli_terrain_heightmap_renders_prints_its_mapping_and_exports(hill, tmp_path, capsys):
     import imageio.v3 as iio
     import trimesh
 
     from jaxgfx.cli import main
 
-    h, path = _hill(tmp_path)
+    h, path = hill
     depth, mesh = tmp_path / "d.npy", tmp_path / "t.ply"
     small = ["--resolution", "16", "--levels", "2", "--size", "32x24", "--smoothing", "2"]
     fn = ["--function", f"heightmap:{path}", "--cell", "2", "--vertical-scale", "0.5"]

@@ -85,7 +85,6 @@ def run(args: argparse.Namespace) -> int:
         )
     )
     share = [float(x) for x in np.asarray(coverage(frames))]
-    share[0] = 1.0 - sum(share[1:])  # the background pass shows wherever no other pass drew
     cover = [dict(stage=n, share=f"{100 * x:.1f} %") for n, x in zip(names, share)]
     save_png(out / "color.png", frame.color)
     save_png(out / "depth.png", depth_image(frame.depth))
