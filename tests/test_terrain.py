@@ -253,7 +253,11 @@ def test_heightmap_mapping_formulas_and_json():
     assert m.origin == (-6.0, -4.0) and m.shape == (2, 3) and m.min_value == 3.0
     assert not m.wrap and hash(m) == hash(dataclasses.replace(m))
     d = m.to_dict()
-    assert set(d) == {"origin", "cell", "vertical_scale", "base", "shape"}
+    assert set(d) == {"origin", "cell", "vertical_scale", "base", "shape", "edge"}
+    assert (
+        d["edge"] == "clamp"
+        and T.heightmap_terrain(h, wrap=True).mapping.to_dict()["edge"] == "wrap"
+    )
     assert json.loads(json.dumps(d)) == d
     r, c = np.meshgrid(np.arange(2), np.arange(3), indexing="ij")
     pos = m.sample_position(r, c, h)
@@ -714,15 +718,23 @@ _G = np.arange(64) * 2 * np.pi / 64
 SMOOTH_MAP = 7 * np.sin(_G)[None, :] + 5 * np.cos(2 * _G + 1)[:, None]
 
 
+SNAP_TOL = 0.02
+"""Voxels: a snapped vertex's height above the surface (float32 bilinear, two origins)."""
+
+
 @pytest.mark.parametrize("viewer", [(5, 2, 7), (40, -3, 21)])
-def test_levels_lie_on_the_same_surface(viewer):
+@pytest.mark.parametrize("snap", [False, True])
+def test_levels_lie_on_the_same_surface(viewer, snap):
     # Issue 17 item 2: every level, its seam ring included, is an unbiased estimate of
     # the same surface.  A level-l voxel drawn as [p, p + 2^l] stood (2^l - 1) / 2 too
     # high on average, and the ring (the outer level's samples) smoothed at the inner
     # level's strength stood up to an outer voxel above both neighbours: flat-topped
-    # slabs along every box border.
+    # slabs along every box border.  With snap (the default for height maps) every
+    # vertex but the seam ring's lies on the surface itself.
     t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
-    st = pipeline_on(t).init(np.array(viewer))
+    pipe = pipeline_on(t)
+    pipe.snap = snap
+    st = pipe.init(np.array(viewer))
     for lvl, lv in enumerate(T.level_views(st)):
         p = lv["vertices"].astype(np.float64) + lv["origin"]
         f = lv["faces"][lv["visible"]]
@@ -735,6 +747,29 @@ def test_levels_lie_on_the_same_surface(viewer):
         fn = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
         up = fn[:, 1] > 0.5 * np.linalg.norm(fn, axis=1)
         assert abs(err(p[f[up]].mean(axis=1)).mean()) <= 0.25 * (1 << lvl) + 0.25, lvl
+        if snap:
+            # only the seam ring (the outer mesh's vertices and their midpoints) is off
+            lat = np.asarray(st.meshes[lvl].lattice)[np.unique(f)]
+            ring = np.any((lat <= 1) | (lat >= N - 1), -1) & (lvl < st.levels - 1)
+            assert np.abs(err(drawn[~ring])).max() <= SNAP_TOL, lvl
+            assert np.abs(err(drawn[ring])).max(initial=0.0) <= (1 << lvl) + 0.5, lvl
+
+
+def test_snap_to_surface_is_exact_far_away():
+    # The snap subtracts the integer origins in int32: the same mesh 10^9 voxels away
+    # (map and box moved together) gets bit-identical vertices.
+    h = np.add.outer(np.arange(5.0), 2 * np.arange(6.0)) ** 1.5
+    v = jnp.asarray(np.random.default_rng(0).uniform(-3, 9, (64, 3)), jnp.float32)
+    snap = jax.jit(lambda t, o, v: t.snap_to_surface(o, v))
+    got = []
+    for shift, up in ((0, 0), (10**9, 2**23)):  # heights are float32 below 2^24
+        t = T.heightmap_terrain(h, cell=1.5, origin=(shift + 0.25, -shift), base=up - 3)
+        got.append(np.asarray(snap(t, jnp.asarray([shift, up, -shift], jnp.int32), v)))
+    np.testing.assert_array_equal(got[0], got[1])
+    t = T.heightmap_terrain(h, cell=1.5, origin=(0.25, 0), base=-3)
+    g = np.asarray(T.ground_height(t, v[:, 0], v[:, 2]))
+    np.testing.assert_allclose(got[0][:, 1], g, atol=1e-4)
+    np.testing.assert_array_equal(got[0][:, [0, 2]], np.asarray(v)[:, [0, 2]])
 
 
 def test_blend_keeps_the_seam_and_settles():

@@ -89,6 +89,30 @@ def _header_int(header: str, a: int, b: int) -> int | None:
         return None
 
 
+def _fill_outside(grid: np.ndarray) -> np.ndarray:
+    """NaN cells take the mean of their known 4-neighbours, ring by ring (outwards).
+
+    A USGS DEM's quad is rotated against the UTM grid, so profiles start and end at
+    different rows and the grid's corners outside the quad have no samples.  Growing
+    the known samples outwards extends the edge as the clamped map edge does beyond
+    the map; the lowest height (the old fill) dug a moat around the map and a cliff
+    along the quad's slanted sides.
+    """
+    grid = grid.copy()
+    known = ~np.isnan(grid)
+    if not known.any():
+        raise ValueError("no samples")
+    while not known.all():
+        val = np.pad(np.where(known, grid, 0.0), 1)
+        cnt = np.pad(known.astype(np.float64), 1)
+        total = val[:-2, 1:-1] + val[2:, 1:-1] + val[1:-1, :-2] + val[1:-1, 2:]
+        n = cnt[:-2, 1:-1] + cnt[2:, 1:-1] + cnt[1:-1, :-2] + cnt[1:-1, 2:]
+        grow = ~known & (n > 0)
+        grid[grow] = total[grow] / n[grow]
+        known = known | grow
+    return grid
+
+
 def _parse_usgs_dem(data: bytes, path: str) -> HeightmapData:
     """USGS ASCII DEM (type A header + type B profiles) -> heights and spacing.
 
@@ -126,8 +150,7 @@ def _parse_usgs_dem(data: bytes, path: str) -> HeightmapData:
     for c, (y0, elev) in enumerate(profiles):
         r = int(round((y0 - y_lo) / dy))
         grid[r : r + elev.size, c] = elev
-    # The DEM quad is rotated against UTM; fill the corners outside it with the lowest height.
-    grid = np.where(np.isnan(grid), np.nanmin(grid), grid)
+    grid = _fill_outside(grid)
     # Rows are spaced dy, columns dx; the DEMs we know have dx == dy, one cell serves both.
     ground = {1: _METRES_PER_FOOT, 2: 1.0, 3: _METRES_PER_ARC_SECOND}.get(
         _header_int(header, 528, 534) or -1
@@ -215,13 +238,16 @@ class HeightmapMapping:
     wrap: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able ``{origin, cell, vertical_scale, base, shape}`` (issue 17's keys)."""
+        """JSON-able ``{origin, cell, vertical_scale, base, shape, edge}``: issue 17's keys
+        and what lies beyond the map (``"clamp"``: the edge samples extend outwards;
+        ``"wrap"``: the map repeats)."""
         return {
             "origin": [float(self.origin[0]), float(self.origin[1])],
             "cell": float(self.cell),
             "vertical_scale": float(self.vertical_scale),
             "base": float(self.base),
             "shape": [int(self.shape[0]), int(self.shape[1])],
+            "edge": "wrap" if self.wrap else "clamp",
         }
 
     def sample_position(self, rows, cols, values) -> np.ndarray:
@@ -291,11 +317,13 @@ class HeightmapTerrain:
         v = self._axis_coord(z, m.origin[1], m.shape[0])
         return _bilinear(self.heights, u, v, m.wrap)
 
-    def _axis_coord(self, a: jax.Array, origin: float, count: int) -> jax.Array:
-        """Fractional sample index of the centre of voxel ``a`` (int32) along one axis.
+    def _axis_coord(self, a: jax.Array, origin: float, count: int, frac=0.5) -> jax.Array:
+        """Fractional sample index of the world point ``a + frac`` along one axis.
 
-        The integer part of ``origin`` is subtracted in int32 (exact at 10^9); with
-        ``wrap`` it is first reduced modulo the period, which is a whole number of voxels.
+        ``a`` is int32 (``frac = 0.5``: the centre of voxel ``a``; an array: float32
+        offsets).  The integer part of ``origin`` is subtracted in int32 (exact at
+        10^9); with ``wrap`` it is first reduced modulo the period, which is a whole
+        number of voxels.
         """
         m = self.mapping
         oi = math.floor(origin)
@@ -306,7 +334,33 @@ class HeightmapTerrain:
             d = _floormod(_floormod(a, period) - (oi % period), period)
         else:
             d = _int_offset(a, oi)
-        return (d.astype(_F32) + _F32(0.5 - of)) / _F32(m.cell) - _F32(0.5)
+        rest = _F32(frac - of) if isinstance(frac, float) else frac - _F32(of)
+        return (d.astype(_F32) + rest) / _F32(m.cell) - _F32(0.5)
+
+    def snap_to_surface(self, origin: jax.Array, vertices: jax.Array) -> jax.Array:
+        """Mesh vertices moved vertically onto the surface ``y = H(x, z)`` (3.4.7).
+
+        A height map knows its surface, so after the voxel mesh is smoothed each vertex
+        takes the height of the bilinear surface under it: the levels' quantisation
+        (up to half a ``2^l`` voxel) and smoothing's shrinkage of ridges and valleys
+        go away, and every level becomes the same heightfield sampled at its own
+        lattice (vertical voxel walls collapse to zero-area triangles).
+
+        Args:
+            origin: (3,) int32 world position the vertices are relative to (a box origin).
+            vertices: (V, 3) float32 positions relative to ``origin``.
+        Returns:
+            (V, 3) float32: x and z unchanged, y on the surface (relative to ``origin``).
+        """
+        m = self.mapping
+        origin = jnp.asarray(origin, _I32)
+        u = self._axis_coord(origin[0], m.origin[0], m.shape[1], vertices[:, 0])
+        v = self._axis_coord(origin[2], m.origin[1], m.shape[0], vertices[:, 2])
+        h = _bilinear(self.heights, u, v, m.wrap)
+        # y - origin_y = H - base + (base - origin_y); the int parts cancel in int32
+        bi = math.floor(m.base)
+        dy = _int_offset(origin[1], bi).astype(_F32) - _F32(m.base - bi)
+        return vertices.at[:, 1].set(h - dy)
 
     def _height_above_base(self, y: jax.Array) -> jax.Array:
         """Float32 ``y + 0.5 - base`` for int32 voxel rows ``y`` (exact for any int32)."""

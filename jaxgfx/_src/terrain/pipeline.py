@@ -47,6 +47,21 @@ def _block(x):
     return jax.block_until_ready(x)
 
 
+def _snap_mesh(terrain, mesh, welded: bool = False):
+    """``mesh`` with its vertices on ``terrain``'s surface (``terrain.snap_to_surface``).
+
+    ``welded``: the seam ring (lattice <= 1 or >= N - 1, see :func:`blend_seam`) keeps
+    the outer mesh's positions, so the seam stays bit-exact; the blended band inside it
+    goes back onto the surface (relaxed, it stood off it as a small ledge).
+    """
+    p = terrain.snap_to_surface(mesh.origin, mesh.vertices)
+    if welded:
+        c, n = mesh.lattice, mesh.size
+        ring = jnp.any((c <= 1) | (c >= n - 1), axis=-1, keepdims=True)
+        p = jnp.where(ring, mesh.vertices, p)
+    return dataclasses.replace(mesh, vertices=p)
+
+
 class ClipBoxPipeline:
     """Builds and moves nested Clip-Boxes around a viewer (host driver, Fig. 3.1 thread 1).
 
@@ -73,6 +88,8 @@ class ClipBoxPipeline:
             displacement (3.4.7); 0 disables it.
         detail_amplitude: midpoint displacement in voxels.
         key: PRNG key of the displacement field (required when ``subdivide > 0``).
+        snap: move smoothed vertices onto the terrain's own surface when it has one
+            (``terrain.snap_to_surface``, height maps); False keeps the voxel mesh.
     """
 
     def __init__(
@@ -89,6 +106,7 @@ class ClipBoxPipeline:
         subdivide: int = 0,
         detail_amplitude: float = 0.25,
         key: jax.Array | None = None,
+        snap: bool = True,
     ):
         self.terrain = check_terrain(terrain)
         subdivide = check_int("subdivide", subdivide, low=0)
@@ -121,6 +139,8 @@ class ClipBoxPipeline:
         self.normals_fn = jax.jit(mesh_normals)
         self.weld_fn = jax.jit(blend_seam)
         self.subdivide_fn = jax.jit(subdivide_mesh)
+        self.snap = bool(snap)
+        self.snap_fn = jax.jit(_snap_mesh, static_argnames=("welded",))
 
     def views(self, state: NestedClipBoxes) -> list[dict[str, np.ndarray]]:
         """:func:`level_views` with this pipeline's subdivision settings."""
@@ -156,7 +176,10 @@ class ClipBoxPipeline:
                 break
             self.capacity[lvl] = 1 << int(max(2 * cap, int(mesh.num_quads) + 1) - 1).bit_length()
         t1 = time.perf_counter()
-        mesh = _block(self.smooth_fn(mesh, iterations=self.smoothing, weight=self.smoothing_weight))
+        mesh = self.smooth_fn(mesh, iterations=self.smoothing, weight=self.smoothing_weight)
+        if self.snap and hasattr(self.terrain, "snap_to_surface"):
+            mesh = self.snap_fn(self.terrain, mesh)
+        mesh = _block(mesh)
         t2 = time.perf_counter()
         mesh = _block(self.normals_fn(mesh))
         t3 = time.perf_counter()
@@ -175,6 +198,8 @@ class ClipBoxPipeline:
         for lvl in range(self.levels - 2, -1, -1):
             if lvl in dirty or lvl + 1 in dirty:
                 out[lvl] = self.weld_fn(out[lvl], out[lvl + 1])
+                if self.snap and hasattr(self.terrain, "snap_to_surface"):
+                    out[lvl] = self.snap_fn(self.terrain, out[lvl], welded=True)
                 dirty.add(lvl)
         return out
 
