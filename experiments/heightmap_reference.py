@@ -46,6 +46,7 @@ VIEWS = {
 }
 BANDS = ((0, 32), (32, 64), (64, 128), (128, 256), (256, 1e9))
 FOV = 60.0
+DEPTH_TARGET, MASK_TARGET = 0.95, 0.97  # issue 17's acceptance
 
 
 def surface(heights: np.ndarray, mapping: dict, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -164,6 +165,7 @@ def run_view(path, view, extra, size, out_dir, resolution=64, levels=5, options=
         depth_ok=float(ok.sum() / max(hit.sum(), 1)),
         masks_agree=float(np.mean(hit == drawn)),
     )
+    row["meets"] = row["depth_ok"] >= DEPTH_TARGET and row["masks_agree"] >= MASK_TARGET
     for lo, hi in BANDS:
         m = both & (ref >= lo) & (ref < hi)
         row[f"median_diff_{lo}"] = float(np.median(diff[m])) if m.any() else None
@@ -210,9 +212,14 @@ def main(argv=None) -> int:
                 )
             )
             print(json.dumps(rows[-1]))
-    cols = ["map", "view", "viewer", "camera", "reference_hit", "depth_ok", "masks_agree"]
+    cols = ["map", "view", "viewer", "camera", "reference_hit", "depth_ok", "masks_agree", "meets"]
     cols += [f"median_diff_{lo}" for lo, _ in BANDS]
     md = markdown_table(rows, cols) + f"\n\n{machine()}\n"
+    met = sum(r["meets"] for r in rows)
+    md += (
+        f"\n{met} of {len(rows)} views meet depth >= {DEPTH_TARGET} and masks >= "
+        f"{MASK_TARGET} (N = {args.resolution}, L = {args.levels}, {size[0]}x{size[1]}).\n"
+    )
     title = "Clip-Box height maps against a full-resolution heightfield"
     write_table(out_dir, title, md, {"rows": rows, "machine": machine()})
     print(md)
