@@ -364,6 +364,18 @@ def test_terrain_colors_by_slope_and_height():
         T.terrain_colors(v, n[:2], height_range=(0.0, 1.0))
 
 
+def test_dem_fill_grows_known_samples_outwards():
+    from jaxgfx._src.terrain.heightmap import _fill_outside
+
+    nan = np.nan
+    g = np.array([[nan, nan, 4.0], [nan, 2.0, 6.0], [nan, nan, nan]])
+    f = _fill_outside(g)
+    # ring by ring: each cell the mean of its known 4-neighbours when it is reached
+    want = np.array([[2.5, 3.0, 4.0], [2.0, 2.0, 6.0], [2.0, 2.0, 6.0]])
+    np.testing.assert_array_equal(f, want)
+    assert np.isnan(g).sum() == 6  # the input is not changed
+
+
 @pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
 def test_st_helens_true_proportions():
     d = T.read_heightmap(os.path.join(DATA, "SainteHelens.dem"))
@@ -376,6 +388,11 @@ def test_st_helens_true_proportions():
     x, y, z = m.sample_position(r, c, d.heights[r, c])
     assert y == pytest.approx((2543 - 682) / 15)
     assert float(T.ground_height(t, x, z)) == pytest.approx(y, abs=HEIGHT_TOL)
+    # The grid's corners outside the DEM's rotated quad grow from their neighbours: the
+    # steepest step between neighbouring samples is the volcano's own (86 m), where a
+    # fill with the lowest height made a ~500 m moat around the map.
+    h = d.heights
+    assert max(np.abs(np.diff(h, axis=0)).max(), np.abs(np.diff(h, axis=1)).max()) < 100
     img = T.read_heightmap(os.path.join(DATA, "gcanyon_elev_crop.bw.png"))
     assert img.spacing is None and img.height_unit is None
     assert T.heightmap_terrain(img).mapping.vertical_scale == 1.0
