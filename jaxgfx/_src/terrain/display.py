@@ -44,7 +44,8 @@ def level_views(
         amplitude: displacement in voxels.
         subdivide_fn: a jitted :func:`subdivide_mesh` (default: the plain function).
     Returns:
-        per level ``dict(vertices, normals, faces, visible, origin)``.
+        per level ``dict(vertices, normals, faces, visible, origin, lattice)``;
+        ``lattice`` (V, 3) int32 vertex lattice coordinates, None where subdivided.
     """
     if subdivide and key is None:
         raise ValueError("key is required when subdivide > 0")
@@ -60,8 +61,9 @@ def level_views(
             assert key is not None  # checked above: subdivide > 0 needs a key
             sm = sub(m, key=jax.random.fold_in(key, lvl), amplitude=amplitude, visible=vis)
             verts, nrms, faces, vis = sm.vertices, sm.normals, sm.faces, sm.face_valid
+            lattice = None
         else:
-            verts, nrms, faces = m.vertices, m.normals, m.faces
+            verts, nrms, faces, lattice = m.vertices, m.normals, m.faces, m.lattice
         out.append(
             dict(
                 vertices=np.asarray(verts),
@@ -69,6 +71,7 @@ def level_views(
                 faces=np.asarray(faces),
                 visible=np.asarray(vis),
                 origin=np.asarray(m.origin, np.int64),
+                lattice=None if lattice is None else np.asarray(lattice),
             )
         )
     return out
@@ -182,7 +185,7 @@ def _radial_pairs(p: np.ndarray, tri: np.ndarray, lo: int, hi: int, faces: np.nd
     return [(faces[a], faces[b]) for a, b in best]
 
 
-def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3):
+def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3, pairing=None):
     """One surface from the joined levels: no duplicate vertices, no edge in > 2 faces.
 
     Vertices at the same position (the welded seams, 3.4.5) are merged, degenerate
@@ -197,6 +200,9 @@ def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3):
         normals: (V, 3) normals.
         faces: (F, 3) int vertex ids.
         separation: fraction of the way to its faces' centroid a split copy moves.
+        pairing: optional (V, 3) positions to pair the faces around a shared edge by
+            (default ``vertices``): the voxel lattice, where smoothed positions snapped
+            onto a height map fold thin wall slivers and mislead the angular order.
     Returns:
         ``(vertices (V', 3) float32, normals (V', 3) float32, faces (F', 3) int32)``.
     """
@@ -208,6 +214,7 @@ def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3):
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     # Exact positions: the seam vertices are bit-identical copies (weld_seam, level_arrays).
     _, first, inv = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    p64 = (v if pairing is None else np.asarray(pairing))[first].astype(np.float64)
     v, nv, f = v[first], nv[first], inv.reshape(-1)[f]
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
     _, keep = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
@@ -226,7 +233,6 @@ def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3):
     order = np.argsort(key, kind="stable")
     _, start, count = np.unique(key[order], return_index=True, return_counts=True)
     pairs = [np.stack([order[start[count == 2]], order[start[count == 2] + 1]], -1)]
-    p64 = v.astype(np.float64)
     for s0, c in zip(start[count > 2], count[count > 2]):
         h = order[s0 : s0 + c]
         fp = _radial_pairs(p64, f, int(lo[h[0]]), int(hi[h[0]]), h // 3)
@@ -240,10 +246,12 @@ def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3):
     vid = f.reshape(-1)
     ids, first_w, new_f = np.unique(comp, return_index=True, return_inverse=True)
     orig = vid[first_w]
-    pos = p64[orig]
+    pos = v.astype(np.float64)[orig]
     split = np.bincount(orig, minlength=v.shape[0])[orig] > 1
     if split.any():
-        cen = p64[f].mean(axis=1)[np.arange(3 * n_f) // 3]  # centroid of each wedge's face
+        cen = v.astype(np.float64)[f].mean(axis=1)[
+            np.arange(3 * n_f) // 3
+        ]  # centroid of each wedge's face
         acc = np.zeros((ids.shape[0], 3))
         np.add.at(acc, new_f.reshape(-1), cen)
         cnt = np.bincount(new_f.reshape(-1), minlength=ids.shape[0])[:, None]
@@ -253,6 +261,24 @@ def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3):
         nv[orig],
         new_f.reshape(-1, 3).astype(np.int32),
     )
+
+
+def _lattice_positions(levels: Sequence[dict], anchor, level: int | None):
+    """(V, 3) voxel-lattice positions of :func:`level_arrays`' vertices, or None.
+
+    ``lattice 2^l + origin - anchor`` per level: the unsmoothed voxel geometry, whose
+    edge-touching voxels :func:`weld_mesh` pairs without ambiguity.  None when a
+    level has no lattice (subdivided).
+    """
+    anchor = np.asarray(anchor, np.int64)
+    out = []
+    for i, lv in enumerate(levels):
+        lat = lv.get("lattice")
+        if lat is None or lat.shape[0] != lv["vertices"].shape[0]:
+            return None
+        lvl = i if level is None else level
+        out.append(lat.astype(np.float64) * (1 << lvl) + (lv["origin"] - anchor))
+    return np.concatenate(out)
 
 
 def mesh_to_trimesh(
@@ -275,7 +301,7 @@ def mesh_to_trimesh(
     sel = list(levels) if level is None else [levels[level]]
     v, n, f, _ = level_arrays(sel, anchor)
     if weld:
-        v, n, f = weld_mesh(v, n, f)
+        v, n, f = weld_mesh(v, n, f, pairing=_lattice_positions(sel, anchor, level))
     mesh = trimesh.Trimesh(v, f, vertex_normals=n, process=False)
     mesh.remove_unreferenced_vertices()
     return mesh
