@@ -45,7 +45,7 @@ def level_views(
         subdivide_fn: a jitted :func:`subdivide_mesh` (default: the plain function).
     Returns:
         per level ``dict(vertices, normals, faces, visible, origin, lattice)``;
-        ``lattice`` (V, 3) int32 vertex lattice coordinates, None where subdivided.
+        ``lattice`` (V, 3) int32 vertex lattice coordinates, (0, 3) where subdivided.
     """
     if subdivide and key is None:
         raise ValueError("key is required when subdivide > 0")
@@ -61,7 +61,7 @@ def level_views(
             assert key is not None  # checked above: subdivide > 0 needs a key
             sm = sub(m, key=jax.random.fold_in(key, lvl), amplitude=amplitude, visible=vis)
             verts, nrms, faces, vis = sm.vertices, sm.normals, sm.faces, sm.face_valid
-            lattice = None
+            lattice = jnp.zeros((0, 3), jnp.int32)  # midpoints have no lattice point
         else:
             verts, nrms, faces, lattice = m.vertices, m.normals, m.faces, m.lattice
         out.append(
@@ -71,7 +71,7 @@ def level_views(
                 faces=np.asarray(faces),
                 visible=np.asarray(vis),
                 origin=np.asarray(m.origin, np.int64),
-                lattice=None if lattice is None else np.asarray(lattice),
+                lattice=np.asarray(lattice),
             )
         )
     return out
@@ -273,7 +273,7 @@ def _lattice_positions(levels: Sequence[dict], anchor, level: int | None):
     anchor = np.asarray(anchor, np.int64)
     out = []
     for i, lv in enumerate(levels):
-        lat = lv.get("lattice")
+        lat = lv.get("lattice")  # absent in hand-made views; empty where subdivided
         if lat is None or lat.shape[0] != lv["vertices"].shape[0]:
             return None
         lvl = i if level is None else level
