@@ -8,6 +8,11 @@ differential sampling + faces + smoothing + normals: the <= 100 ms target at
 N = 128), the time to rebuild the level-0 box and the slowest level's box from
 scratch, render time for all levels, total polygons, memory of the state.
 
+Beside it (issue 17 item 6), on the detail size's boxes in the same run:
+``voxels_to_mesh`` against VTK FlyingEdges3D (one thread) and scikit-image marching
+cubes, triangles/s and vertex-distance agreement (peers from ``.[bench]``; a missing
+one is skipped with the reason printed).
+
 The terrain is the thesis's benchmark kind: 50 000 random CSG operations (3.5.2).
 Compile time is reported apart: the fly path runs twice and only the second run
 (same shapes, no compilation) is timed.
