@@ -8,6 +8,11 @@ differential sampling + faces + smoothing + normals: the <= 100 ms target at
 N = 128), the time to rebuild the level-0 box and the slowest level's box from
 scratch, render time for all levels, total polygons, memory of the state.
 
+Beside it (issue 17 item 6), on the detail size's boxes in the same run:
+``voxels_to_mesh`` against VTK FlyingEdges3D (one thread) and scikit-image marching
+cubes, triangles/s and vertex-distance agreement (peers from ``.[bench]``; a missing
+one is skipped with the reason printed).
+
 The terrain is the thesis's benchmark kind: 50 000 random CSG operations (3.5.2).
 Compile time is reported apart: the fly path runs twice and only the second run
 (same shapes, no compilation) is timed.
@@ -125,6 +130,130 @@ def subdivision_ms(pipe, st, lvl: int, key) -> tuple[float, int]:
     return 1e3 * min(ts), int(np.asarray(out.face_valid).sum())
 
 
+def _vtk_flying_edges():
+    """A one-thread VTK FlyingEdges3D mesher of a bool volume, or (None, reason)."""
+    try:
+        import vtk
+        from vtk.util import numpy_support
+    except ImportError as e:
+        return None, f"vtk not installed ({e}); pip install '.[bench]'"
+    vtk.vtkMultiThreader.SetGlobalMaximumNumberOfThreads(1)
+
+    def mesher(vox: np.ndarray):
+        img = vtk.vtkImageData()
+        img.SetDimensions(vox.shape[2], vox.shape[1], vox.shape[0])  # x fastest = our z
+        arr = numpy_support.numpy_to_vtk(
+            np.ascontiguousarray(vox, np.uint8).ravel(), deep=1, array_type=vtk.VTK_UNSIGNED_CHAR
+        )
+        img.GetPointData().SetScalars(arr)
+        fe = vtk.vtkFlyingEdges3D()
+        fe.SetInputData(img)
+        fe.SetValue(0, 0.5)
+        fe.ComputeNormalsOff()
+        fe.ComputeGradientsOff()
+        fe.ComputeScalarsOff()
+
+        def run():
+            fe.Modified()
+            fe.Update()
+            out = fe.GetOutput()
+            pts = numpy_support.vtk_to_numpy(out.GetPoints().GetData())[:, ::-1]  # (x, y, z)
+            return pts, out.GetNumberOfPolys()
+
+        return run
+
+    return mesher, ""
+
+
+def _skimage_marching_cubes():
+    try:
+        from skimage import measure
+    except ImportError as e:
+        return None, f"scikit-image not installed ({e}); pip install '.[bench]'"
+
+    def mesher(vox: np.ndarray):
+        f = vox.astype(np.float32)
+
+        def run():
+            v, faces, _, _ = measure.marching_cubes(f, 0.5)
+            return v, len(faces)
+
+        return run
+
+    return mesher, ""
+
+
+def _nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from each point of ``a`` to the nearest point of ``b``."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(b).query(a)[0]
+
+
+def meshing_peers(pipe, st, repeats: int = 5) -> list[dict]:
+    """voxels_to_mesh against VTK FlyingEdges3D and skimage marching cubes, per level box.
+
+    Same volume (the box's voxels, no seam ring) and the same run, alternating rounds,
+    best of ``repeats``.  Triangles/s is each mesher's own triangles over its time.
+    Agreement: distance from each peer vertex (shifted by half a voxel: a sample sits
+    at a cell centre) to the nearest voxel-mesh vertex, mean and 95th percentile, in
+    voxels: the iso-surface cuts the voxel faces' edges, so <= 0.71 is the same surface.
+    """
+    peers = {}
+    for name, (make, why) in (
+        ("vtk_flying_edges", _vtk_flying_edges()),
+        ("skimage_marching_cubes", _skimage_marching_cubes()),
+    ):
+        if make is None:
+            print(f"skip {name}: {why}")
+        else:
+            peers[name] = make
+    rows = []
+    for lvl, box in enumerate(st.boxes):
+        vox = np.asarray(box.voxels)
+        if vox.all() or not vox.any():  # no surface in this box (all rock or all air)
+            continue
+        cap = pipe.capacity.get(lvl, pipe.max_quads)
+        while True:
+            m = pipe.extract_fn(box, max_quads=cap, seam=False)
+            if not bool(m.overflow):
+                break
+            cap *= 2
+
+        def ours(box=box, cap=cap):
+            return jax.block_until_ready(pipe.extract_fn(box, max_quads=cap, seam=False))
+
+        runs = {"voxels_to_mesh": ours, **{k: make(vox) for k, make in peers.items()}}
+        out = {k: r() for k, r in runs.items()}
+        ts: dict[str, list[float]] = {k: [] for k in runs}
+        for _ in range(repeats):
+            for k, r in runs.items():
+                t0 = time.perf_counter()
+                r()
+                ts[k].append(time.perf_counter() - t0)
+        mesh = out["voxels_to_mesh"]
+        tris = {"voxels_to_mesh": int(np.asarray(mesh.face_valid).sum())}
+        lat = np.asarray(mesh.lattice)[: int(mesh.num_vertices)].astype(np.float64)
+        row = dict(level=lvl, quads=int(mesh.num_quads))
+        for k, t in ts.items():
+            if k != "voxels_to_mesh":
+                pts, tris[k] = out[k]
+                d = _nearest(np.asarray(pts, np.float64) + 0.5, lat)
+                row[f"{k}_dist_mean"] = float(d.mean())
+                row[f"{k}_dist_p95"] = float(np.percentile(d, 95))
+            row[f"{k}_ms"] = 1e3 * min(t)
+            row[f"{k}_mtris_s"] = tris[k] / min(t) / 1e6
+        for k in peers:
+            row[f"ratio_vs_{k}"] = row["voxels_to_mesh_mtris_s"] / row[f"{k}_mtris_s"]
+        rows.append(row)
+        print(
+            f"meshing level {lvl}: "
+            + ", ".join(f"{k} {row[k + '_ms']:.1f} ms {row[k + '_mtris_s']:.1f} Mt/s" for k in runs)
+            + "".join(f", x{k} {row['ratio_vs_' + k]:.2f}" for k in peers)
+        )
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes, under a minute")
@@ -148,6 +277,7 @@ def main(argv=None) -> int:
     path = fly_path(steps, 4)
     rows = []
     detail = None
+    peers: list[dict] = []
     for n in sorted(set(sizes) | {detail_n}):
         pipe = T.ClipBoxPipeline(csg, size=n, levels=levels)
         t0 = time.perf_counter()
@@ -185,6 +315,7 @@ def main(argv=None) -> int:
             f"compile ~{row['compile_s']:.0f} s"
         )
         if n == detail_n:
+            peers = meshing_peers(pipe, st)
             key = jax.random.PRNGKey(1)
             subdiv = {lvl: subdivision_ms(pipe, st, lvl, key) for lvl in range(min(2, levels))}
             detail = dict(
@@ -256,6 +387,25 @@ def main(argv=None) -> int:
         ("compile_s", "Compile (s, apart)"),
     ):
         md.append(f"| {label} | " + " | ".join(f"{r[key]:.2f}" for r in rows) + " |")
+    if peers:
+        keys = [k[: -len("_ms")] for k in peers[0] if k.endswith("_ms")]
+        md += [
+            "",
+            f"Voxels -> polygons on the same {detail['N']}^3 boxes (no seam ring), same run, "
+            "best of 5 alternating: ms, M triangles/s; peer vertices' distance to the "
+            "nearest voxel-mesh vertex (mean / p95, voxels)",
+            "",
+            "| level | quads | " + " | ".join(keys) + " | agreement |",
+            "|---" * (len(keys) + 3) + "|",
+        ]
+        for r in peers:
+            agree = "; ".join(
+                f"{k}: {r[k + '_dist_mean']:.2f} / {r[k + '_dist_p95']:.2f}"
+                for k in keys
+                if k + "_dist_mean" in r
+            )
+            cells = " | ".join(f"{r[k + '_ms']:.1f} ms, {r[k + '_mtris_s']:.1f}" for k in keys)
+            md.append(f"| {r['level']} | {r['quads']} | {cells} | {agree} |")
     text = "\n".join(md)
     print(text)
     if args.out:
@@ -263,7 +413,7 @@ def main(argv=None) -> int:
             args.out,
             "Clip-Box performance (Table 3.1)",
             text,
-            dict(machine=machine(), detail=detail, sizes=rows),
+            dict(machine=machine(), detail=detail, sizes=rows, meshing_peers=peers),
         )
     return 0
 

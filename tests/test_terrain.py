@@ -583,6 +583,57 @@ def test_mesh_of_enclosed_blob_is_closed_and_oriented():
     assert len({tuple(r) for r in used}) == used.shape[0]
 
 
+def quads_reference(occ: np.ndarray, seam: bool) -> set:
+    """NumPy reference of 3.4.4: every solid/air face as two triangles of lattice corners
+    (counter-clockwise from the air), after the seam snap; degenerate ones dropped."""
+    n = occ.shape[0]
+    eye = np.eye(3, dtype=np.int64)
+    out = set()
+    for d in range(3):
+        lo = np.take(occ, np.arange(n - 1), axis=d)
+        hi = np.take(occ, np.arange(1, n), axis=d)
+        for p in np.argwhere(lo != hi):
+            base = p + eye[d]
+            e_u, e_v = eye[(d + 1) % 3], eye[(d + 2) % 3]
+            solid_below = lo[tuple(p)]
+            c1, c3 = (base + e_u, base + e_v) if solid_below else (base + e_v, base + e_u)
+            cs = [base, c1, base + e_u + e_v, c3]
+            if seam:
+                cs = [c - (c & 1) if np.any((c == 0) | (c == n)) else c for c in cs]
+            for t in ((0, 1, 2), (0, 2, 3)):
+                tri = [tuple(int(v) for v in cs[i]) for i in t]
+                if len(set(tri)) == 3:
+                    r = tri.index(min(tri))
+                    out.add(tuple(tri[r:] + tri[:r]))
+    return out
+
+
+def test_mesh_matches_numpy_reference():
+    # Issue 17 item 6: the word-parallel mesher gives exactly the reference quads (as
+    # lattice triangles), each vertex once, and vertex_id inverts the lattice.
+    rng = np.random.default_rng(5)
+    vox = np.zeros((N, N, N), bool)
+    vox[:, :7] = True
+    vox[2:14, 5:11, 1:15] = rng.random((12, 6, 14)) < 0.5
+    box = T.ClipBox(jnp.asarray([0, -8, 0], jnp.int32), jnp.asarray(vox), jnp.asarray(0), N)
+    for seam in (True,):  # seam=False is the same code without the snap; one compile
+        m = mesh_jit(box, seam=seam)
+        assert not bool(m.overflow)
+        lat = np.asarray(m.lattice)
+        f = np.asarray(m.faces)[np.asarray(m.face_valid)]
+        got = set()
+        for t in lat[f]:
+            tri = [tuple(int(v) for v in c) for c in t]
+            r = tri.index(min(tri))
+            got.add(tuple(tri[r:] + tri[:r]))
+        occ = np.asarray(T.seam_occupancy(jnp.asarray(vox))) if seam else vox
+        assert got == quads_reference(occ, seam) and len(got) == len(f)
+        used = lat[: int(m.num_vertices)]
+        assert len({tuple(r) for r in used}) == used.shape[0] == len(np.unique(f))
+        vid = np.asarray(m.vertex_id(jnp.asarray(used)))
+        np.testing.assert_array_equal(vid, np.arange(used.shape[0]))
+
+
 def test_mesh_overflow_is_reported_not_hidden():
     vox = np.indices((N, N, N)).sum(0) % 2 == 0  # checkerboard: every face is a quad
     box = T.ClipBox(jnp.zeros(3, jnp.int32), jnp.asarray(vox), jnp.asarray(0), N)
