@@ -20,8 +20,12 @@ Loss per image (:func:`image_loss`), averaged over the P x C images::
   + depth_weight * mean_{pixels both cover} ((z - z_target) * f_y / z_target)^2
 
 The depth residual is measured in pixels at the target's depth (``f_y`` is the focal length in
-pixels), so both terms are unit-free and the default weights (1 and 1) work for a limb in metres
-and a fox in centimetres alike.
+pixels), so both terms are unit-free and the default weights (1 and 1) work for any scene scale.
+Pixels whose residual exceeds ``depth_clip`` (4 pixels) are left out of the depth term: there
+the two images see different surfaces (a tail in front of the body in one, the body in the
+other), and their depth gradient would pull the surface the wrong way; the silhouette term moves
+such outlines.  On the glTF Fox's tail this took the vertex error after 60 steps from 1.02 % to
+0.26 % of the tail radius (experiments/fit_style_images.py).
 """
 
 from __future__ import annotations
