@@ -22,6 +22,9 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
   (structure-of-arrays layout XLA:CPU fuses; equal to the per-vertex functions vmapped).
 * Styles fitted by gradient descent instead of painted (5.6 made differentiable) -- ``fit``:
   :func:`fit_style`.
+* Styles fitted to depth and silhouette images of posed characters from several cameras
+  (skinning -> rasterize -> analytic antialias, batched with vmap) -- ``fit_images``:
+  :func:`fit_style_images`, :func:`render_style_images`, :func:`style_image_loss`.
 * Skinned glTF characters (JOINTS_0 / WEIGHTS_0, animations) -- ``gltf``:
   :func:`load_gltf_skin`, :func:`sample_animation`, :func:`joint_matrices`; the file's unskinned
   meshes (props) at their node transforms: :func:`load_gltf_meshes`.
@@ -70,6 +73,12 @@ from jaxgfx._src.skin.fit import params_to_style as params_to_style
 from jaxgfx._src.skin.fit import smoothness_penalty as smoothness_penalty
 from jaxgfx._src.skin.fit import style_loss as style_loss
 from jaxgfx._src.skin.fit import style_to_params as style_to_params
+from jaxgfx._src.skin.fit_images import ImageTargets as ImageTargets
+from jaxgfx._src.skin.fit_images import fit_style_images as fit_style_images
+from jaxgfx._src.skin.fit_images import image_loss as image_loss
+from jaxgfx._src.skin.fit_images import render_silhouette_depth as render_silhouette_depth
+from jaxgfx._src.skin.fit_images import render_style_images as render_style_images
+from jaxgfx._src.skin.fit_images import style_image_loss as style_image_loss
 from jaxgfx._src.skin.gltf import GltfMesh as GltfMesh
 from jaxgfx._src.skin.gltf import GltfSkin as GltfSkin
 from jaxgfx._src.skin.gltf import joint_globals as joint_globals
@@ -166,6 +175,12 @@ __all__ = [
     "smoothness_penalty",
     "style_loss",
     "fit_style",
+    "ImageTargets",
+    "render_silhouette_depth",
+    "render_style_images",
+    "image_loss",
+    "style_image_loss",
+    "fit_style_images",
     "GltfSkin",
     "load_gltf_skin",
     "GltfMesh",
