@@ -169,7 +169,7 @@ class ShardedMap:
         return jax.tree_util.tree_map(lambda y: y[:n], out) if pad else out
 
 
-def sharded_vmap(fn: Callable, in_axes, devices=None) -> ShardedMap:
+def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = None) -> ShardedMap:
     """``jit(vmap(fn, in_axes))`` with the batch split over a 1-D device mesh; arrays back.
 
     The in-memory sibling of :func:`sharded_renderer` for per-item kernels with shared data (a
@@ -179,17 +179,22 @@ def sharded_vmap(fn: Callable, in_axes, devices=None) -> ShardedMap:
     starts) it runs one shard per core, e.g. a batch of poses through
     :func:`jaxgfx.skin.linear_blend_skinning` on every core::
 
-        lbs = sharded_vmap(skin.linear_blend_skinning, in_axes=(0, None, None, None, None))
+        lbs = sharded_vmap(skin.linear_blend_skinning, (0, None, None, None, None), chunk=8)
         mesh = lbs.replicate((vertices, normals, joints, weights))  # once
         pos, nrm = lbs(transforms, *mesh)  # transforms (B, J, 3, 4) -> (B, V, 3) twice
 
-    A batch that is not a multiple of the device count is padded with its last item and the
-    outputs are cut back (one extra copy).  Calls with the same shapes do not recompile.
+    ``chunk`` runs each device's shard as ``lax.map(fn, batch_size=chunk)``: ``chunk`` items
+    vmapped at a time, in a loop.  Table lookups (skinning's bone matrices) then stay in the
+    core's cache: 64-bone LBS of 80 poses x 12,546 vertices took 48 ms CPU time vmapped and
+    25-26 ms in chunks of 4-16 on the 2-core box.  A batch that is not a multiple of the
+    device count is padded with its last item and the outputs are cut back (one extra copy).
+    Calls with the same shapes do not recompile.
 
     Args:
         fn: function of ONE item.
         in_axes: a tuple with 0 (batched) or None (shared) per positional argument.
         devices: devices to shard over (default: all devices).
+        chunk: items per step of each device's loop (default: the whole shard in one vmap).
 
     Returns:
         A :class:`ShardedMap`: ``(*args) -> outputs`` with a leading batch axis.
@@ -198,15 +203,27 @@ def sharded_vmap(fn: Callable, in_axes, devices=None) -> ShardedMap:
         raise ValueError(f"in_axes must be a tuple of 0 or None per argument, got {in_axes!r}")
     if 0 not in in_axes:
         raise ValueError("in_axes: at least one argument must be batched (0)")
+    if chunk is not None:
+        chunk = check_int("chunk", chunk, low=1)
+    axes = tuple(in_axes)
     mesh = device_mesh(devices)
-    batch = NamedSharding(mesh, PartitionSpec("batch"))
-    whole = NamedSharding(mesh, PartitionSpec())
+
+    def local(*args):
+        if chunk is None:
+            return jax.vmap(fn, in_axes=axes)(*args)
+        batched = [x for x, a in zip(args, axes) if a == 0]
+
+        def one(items):
+            it = iter(items)
+            return fn(*(next(it) if a == 0 else x for x, a in zip(args, axes)))
+
+        return jax.lax.map(one, batched, batch_size=chunk)
+
+    spec = tuple(PartitionSpec("batch") if a == 0 else PartitionSpec() for a in axes)
     jitted = jax.jit(
-        jax.vmap(fn, in_axes=tuple(in_axes)),
-        in_shardings=tuple(batch if a == 0 else whole for a in in_axes),
-        out_shardings=batch,
+        jax.shard_map(local, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"))
     )
-    return ShardedMap(mesh, tuple(in_axes), jitted)
+    return ShardedMap(mesh, axes, jitted)
 
 
 def _run(fn, params, mesh):

@@ -58,10 +58,12 @@ SHARDED = textwrap.dedent(
     pv = rng.normal(size=(40, 3)).astype(np.float32)
     lbs = sharded_vmap(skin.linear_blend_skinning, in_axes=(0, None, None, None, None))
     sp, sn = lbs(t, *lbs.replicate((pv, pv, j, w)))
+    lbs1 = sharded_vmap(skin.linear_blend_skinning, (0, None, None, None, None), chunk=1)
+    cp, cn = lbs1(t, *lbs1.replicate((pv, pv, j, w)))  # each device loops over its items
     loop = [skin.linear_blend_skinning(t[k], pv, pv, j, w) for k in range(6)]
     lbs_diff = max(
         float(np.abs(np.asarray(o) - np.asarray(r)).max())
-        for k in range(6) for o, r in zip((sp[k], sn[k]), loop[k])
+        for k in range(6) for o, r in zip((sp[k], sn[k], cp[k], cn[k]), loop[k] * 2)
     )
     fa, fb = np.isfinite(a["depth"]), np.isfinite(b["depth"])
     da = np.where(fa, a["depth"], 1.0)
