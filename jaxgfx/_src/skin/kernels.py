@@ -33,6 +33,22 @@ poses x 12,546 vertices: dropped.
 For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
 row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices): not kept, the
 kernel keeps the reference's arithmetic.
+
+Session 9 (CPU time of one process, so the numbers hold on a busy box; 80 poses x 12,546
+vertices vmapped, 64 bones, 4 influences unless said):
+
+* An elemental loop computes each output element on its own, so a (V, 3) output whose every
+  component needs all three (the normal's length) recomputes all of them: normalizing in the
+  gather loop cost 3x the normal's gathers (31 against 15 ms for the normals with 6 bones
+  and 3 influences).  The normals are now written raw and normalized in a second pass:
+  52 -> 30 ms.  On one 1 M-vertex pose the fused form was as fast (26-32 ms either way).
+* Gathers from a table batched over P poses read P x 12 x J floats (245 KB for 80 x 64 bones):
+  vmapping all poses at once spills the table from the cache.  ``lax.map`` in chunks of 4-16
+  poses: 48 -> 25-26 ms (``jaxgfx.sweep.sharded_vmap(..., chunk=)``).  Chunking the vertices of
+  one pose instead (``lax.map`` over 1-16 k vertex blocks) was 3-4x slower: dropped.
+* Sharing the blended coefficients of positions and normals in one (V, 6) output: 313 against
+  73 ms wall on one 1 M-vertex pose (the multi-use gathers again): dropped.
+* :func:`style_offsets`: the style path in this layout, 107-113 -> 57 ms for both envelopes.
 """
 
 from __future__ import annotations
