@@ -31,8 +31,8 @@ Packing two coefficients (LBS) or a row and its slope (sampled) into one complex
 the gathers but not the time: 50.2 against 56.1 ms (LBS) and 83.7 against 86.8 ms (sampled), 80
 poses x 12,546 vertices: dropped.
 For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
-row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices): not kept, the
-kernel keeps the reference's arithmetic.
+row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices) in session 7, and
+lost 30 % in session 9 (below): not kept, the kernel keeps the reference's arithmetic.
 
 Session 9 (CPU time of one process, so the numbers hold on a busy box; 80 poses x 12,546
 vertices vmapped, 64 bones, 4 influences unless said):
@@ -49,6 +49,31 @@ vertices vmapped, 64 bones, 4 influences unless said):
 * Sharing the blended coefficients of positions and normals in one (V, 6) output: 313 against
   73 ms wall on one 1 M-vertex pose (the multi-use gathers again): dropped.
 * :func:`style_offsets`: the style path in this layout, 107-113 -> 57 ms for both envelopes.
+
+Sampled skinning against LBS (issue 16's ``sampled >= 0.9x LBS``; the limb: 80 poses x 12,546
+vertices, 3 influences, S = 32, 6 bones for LBS; CPU time and wall of one process, best of 7-9
+interleaved rounds, one XLA device, load 3.4-4.8 on 2 cores; every variant equal to this kernel
+to 1e-6).  The kept kernel runs at 0.62-0.71x LBS (34.4 against 24.5 ms CPU time at best):
+
+* What the time goes to (the optimized LLVM IR of the position loop): XLA:CPU emits a scalar
+  loop over (pose, vertex) with the 3 components unrolled, no SIMD and no FMA contraction.  Per
+  vertex and pose the sampled position loop does 84 loads and ~165 float ops (72 table loads:
+  row and slope of 12 coefficients for 3 influences), LBS 45 loads and ~93 ops: positions alone
+  take 18.7 against 12.0 ms.  Pass 1 (the table) is 1.9 against 0.6 ms for the 80 poses.
+* (a) row and slope side by side, a (12, R, 2) table with one (V, 2) gather per coefficient and
+  influence: 0.70x (35.3 ms), with ``mode='promise_in_bounds'`` 0.71x: as fast as two gathers
+  (the loop loads each float on its own either way).
+* (b) the lerp folded into the weights (2I influences ``r``, ``r + 1`` with weights
+  ``w (1 - f)``, ``w f`` of a plain 12-column table, the LBS kernel): 0.47x (52.0 ms), 0.49x
+  with the 2I indices and weights precomputed: twice the index and weight loads and clamps.
+* The 12 blended coefficients written out once and shared by positions and normals ((12, V) or
+  (V, 12) per pose): 0.23-0.27x (106-121 ms); they are 48 MB for 80 poses, written and read.
+* Poses minor, a (C, R, P) table gathered as (V, P) arrays (a vertex's indices and weights are
+  fixed along the minor axis), then transposed to (P, V, 3): LBS 24.9 -> 17.7 ms, sampled
+  34.6 -> 35.5 ms, so 0.50x.
+* On 2 devices (``sharded_vmap``, chunks of 4 / 8 / 20 / 40 poses): 0.50 / 0.45 / 0.51 / 0.45x
+  the chunk-8 LBS; pass 1 runs once per chunk there (about 45 small ops each): 4.4 against
+  1.4 ms.
 """
 
 from __future__ import annotations
