@@ -68,6 +68,10 @@ to 1e-6).  The kept kernel runs at 0.62-0.71x LBS (34.4 against 24.5 ms CPU time
   with the 2I indices and weights precomputed: twice the index and weight loads and clamps.
 * The 12 blended coefficients written out once and shared by positions and normals ((12, V) or
   (V, 12) per pose): 0.23-0.27x (106-121 ms); they are 48 MB for 80 poses, written and read.
+* Positions and raw normals from the same 12 coefficients in one loop, written as one (V, 2, 3)
+  or (V, 3, 2) array and split in the normalizing pass: sampled 33.5 against 34.7 ms (0.72x) and
+  35.8 against 34.6 ms (0.68x); LBS in the (V, 3, 2) form took 21.2 against 24.5 ms (one run at
+  load 9-10, not adopted: it would move the bar, not the ratio).
 * Poses minor, a (C, R, P) table gathered as (V, P) arrays (a vertex's indices and weights are
   fixed along the minor axis), then transposed to (P, V, 3): LBS 24.9 -> 17.7 ms, sampled
   34.6 -> 35.5 ms, so 0.50x.
