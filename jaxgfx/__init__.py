@@ -89,7 +89,7 @@ from jaxgfx.skin import (
     skin_exact,
     skin_sampled,
 )
-from jaxgfx.sweep import load_sweep, run_sweep, sharded_renderer
+from jaxgfx.sweep import load_sweep, run_sweep, sharded_renderer, sharded_vmap
 from jaxgfx.terrain import (
     ClipBoxPipeline,
     CSGTerrain,
@@ -151,6 +151,7 @@ __all__ = [
     "run_sweep",
     "load_sweep",
     "sharded_renderer",
+    "sharded_vmap",
     # ch. 3 terrain
     "XorTerrain",
     "SawTerrain",

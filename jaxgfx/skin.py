@@ -19,7 +19,13 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
 * 5.9 Baselines on the same skeleton -- ``baselines``: :func:`bone_transforms`,
   :func:`linear_blend_skinning` (SSD) and :func:`dual_quaternion_skinning` (Kavan et al.).
 * The mesh kernels behind :func:`linear_blend_skinning` and :func:`skin_sampled` -- ``kernels``
-  (structure-of-arrays layout XLA:CPU fuses; equal to the per-vertex functions vmapped).
+  (structure-of-arrays layout XLA:CPU fuses; equal to the per-vertex functions vmapped).  A
+  batch of characters or poses on every core: :func:`jaxgfx.sweep.sharded_vmap` with one XLA host
+  device per core and ``chunk=8`` (each core loops over 8 poses at a time, so the bone table
+  stays in its cache)::
+
+      lbs = sweep.sharded_vmap(skin.linear_blend_skinning, (0, None, None, None, None), chunk=8)
+      pos, nrm = lbs(transforms, *lbs.replicate((vertices, normals, joints, weights)))
 * Styles fitted by gradient descent instead of painted (5.6 made differentiable) -- ``fit``:
   :func:`fit_style`.
 * Styles fitted to depth and silhouette images of posed characters from several cameras

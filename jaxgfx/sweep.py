@@ -47,6 +47,8 @@ __all__ = [
     "device_mesh",
     "ShardedRenderer",
     "sharded_renderer",
+    "ShardedMap",
+    "sharded_vmap",
     "run_sweep",
     "render_fingerprint",
     "SweepMismatch",
@@ -124,6 +126,104 @@ def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
     return ShardedRenderer(
         mesh, jax.jit(jax.vmap(render_fn), in_shardings=shard, out_shardings=shard)
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class ShardedMap:
+    """``jit(vmap(fn, in_axes))`` over a 1-D device mesh; see :func:`sharded_vmap`.
+
+    Attributes:
+        mesh: the 1-D device mesh (axis ``"batch"``).
+        in_axes: 0 or None per positional argument.
+        jitted: the jitted, sharded ``vmap(fn)``.
+    """
+
+    mesh: Mesh
+    in_axes: tuple
+    jitted: Any
+
+    def replicate(self, tree):
+        """Put ``tree`` on every device once (shared data), so calls do not copy it again."""
+        return jax.device_put(tree, NamedSharding(self.mesh, PartitionSpec()))
+
+    def split(self, tree):
+        """Put ``tree`` (leading axis a multiple of the devices) split over the devices."""
+        return jax.device_put(tree, NamedSharding(self.mesh, PartitionSpec("batch")))
+
+    def __call__(self, *args):
+        if len(args) != len(self.in_axes):
+            raise TypeError(f"in_axes has {len(self.in_axes)} entries for {len(args)} arguments")
+        n = batch_size([x for x, a in zip(args, self.in_axes) if a == 0])
+        pad = -n % int(self.mesh.devices.size)
+        if pad:
+            # repeat the last item: the padded rows are computed and dropped
+            grow = (
+                lambda x: jax.numpy.concatenate(  # noqa: E731
+                    [x, jax.numpy.repeat(x[-1:], pad, axis=0)]
+                )
+            )
+            args = tuple(
+                jax.tree_util.tree_map(grow, x) if a == 0 else x for x, a in zip(args, self.in_axes)
+            )
+        out = self.jitted(*args)
+        return jax.tree_util.tree_map(lambda y: y[:n], out) if pad else out
+
+
+def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = None) -> ShardedMap:
+    """``jit(vmap(fn, in_axes))`` with the batch split over a 1-D device mesh; arrays back.
+
+    The in-memory sibling of :func:`sharded_renderer` for per-item kernels with shared data (a
+    mesh's binding) that must not be copied per item: arguments with ``in_axes`` 0 are split
+    along their leading axis over the devices, arguments with ``None`` are replicated.  With
+    one host device per core (``--xla_force_host_platform_device_count``, set before JAX
+    starts) it runs one shard per core, e.g. a batch of poses through
+    :func:`jaxgfx.skin.linear_blend_skinning` on every core::
+
+        lbs = sharded_vmap(skin.linear_blend_skinning, (0, None, None, None, None), chunk=8)
+        mesh = lbs.replicate((vertices, normals, joints, weights))  # once
+        pos, nrm = lbs(transforms, *mesh)  # transforms (B, J, 3, 4) -> (B, V, 3) twice
+
+    ``chunk`` runs each device's shard as ``lax.map(fn, batch_size=chunk)``: ``chunk`` items
+    vmapped at a time, in a loop.  Table lookups (skinning's bone matrices) then stay in the
+    core's cache: 64-bone LBS of 80 poses x 12,546 vertices took 48 ms CPU time vmapped and
+    25-26 ms in chunks of 4-16 on the 2-core box.  A batch that is not a multiple of the
+    device count is padded with its last item and the outputs are cut back (one extra copy).
+    Calls with the same shapes do not recompile.
+
+    Args:
+        fn: function of ONE item.
+        in_axes: a tuple with 0 (batched) or None (shared) per positional argument.
+        devices: devices to shard over (default: all devices).
+        chunk: items per step of each device's loop (default: the whole shard in one vmap).
+
+    Returns:
+        A :class:`ShardedMap`: ``(*args) -> outputs`` with a leading batch axis.
+    """
+    if not isinstance(in_axes, (tuple, list)) or not all(a in (0, None) for a in in_axes):
+        raise ValueError(f"in_axes must be a tuple of 0 or None per argument, got {in_axes!r}")
+    if 0 not in in_axes:
+        raise ValueError("in_axes: at least one argument must be batched (0)")
+    if chunk is not None:
+        chunk = check_int("chunk", chunk, low=1)
+    axes = tuple(in_axes)
+    mesh = device_mesh(devices)
+
+    def local(*args):
+        if chunk is None:
+            return jax.vmap(fn, in_axes=axes)(*args)
+        batched = [x for x, a in zip(args, axes) if a == 0]
+
+        def one(items):
+            it = iter(items)
+            return fn(*(next(it) if a == 0 else x for x, a in zip(args, axes)))
+
+        return jax.lax.map(one, batched, batch_size=chunk)
+
+    spec = tuple(PartitionSpec("batch") if a == 0 else PartitionSpec() for a in axes)
+    jitted = jax.jit(
+        jax.shard_map(local, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"))
+    )
+    return ShardedMap(mesh, axes, jitted)
 
 
 def _run(fn, params, mesh):

@@ -684,6 +684,12 @@ def test_sampled_kernel_equals_per_vertex_reference():
     ]
     table_fn = jax.jit(skin.sample_spline_frames, static_argnames="samples")
     ref = jax.jit(jax.vmap(skin.skin_vertex_sampled, in_axes=(None, 0, 0, 0, 0)))
+    style = skin.make_style(0.5 + rng.random((3, 6, 5)), 0.5 + rng.random((3, 7)), hollow=0.05)
+    style_ref = jax.jit(
+        lambda st, style, b: jax.vmap(
+            lambda u, w, lv, ln: skin.style_offset_sampled(st, style, samples, u, w, lv, ln)
+        )(b.dominant_coord, b.dominant_weight, b.dominant_local, b.dominant_local_normal)
+    )
     outs = []
     for pose in poses:
         table, _ = table_fn(rig, pose, samples=samples)
@@ -694,6 +700,14 @@ def test_sampled_kernel_equals_per_vertex_reference():
         np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         outs.append((pos, nrm))
+        # the style kernel equals the vmapped style_offset_sampled (both envelopes, hollow)
+        spos, snrm = _skin_sampled_jit(rig, pose, prepared, style, samples=samples, styles="both")
+        dpos, dnrm = style_ref(table_fn(rig, pose, samples=samples)[1], style, prepared)
+        np.testing.assert_allclose(spos, rpos + dpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        ref_n = rnrm + dnrm
+        ref_n /= np.linalg.norm(ref_n, axis=-1, keepdims=True)
+        np.testing.assert_allclose(snrm, ref_n, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        assert float(np.abs(dpos).max()) > 1e-3  # the style moved the vertices
     # vmap over characters (poses) equals the loop
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *poses)
     bpos, bnrm = jax.jit(

@@ -47,6 +47,24 @@ SHARDED = textwrap.dedent(
     s1 = run_sweep(one, cams, out + "/one", chunk_size=4, devices=jax.devices()[:1], progress=False)
     a, b = load_sweep(out + "/four"), load_sweep(out + "/one")
     direct = sharded_renderer(one)(jax.tree_util.tree_map(lambda x: x[:4], cams))
+    # sharded_vmap: 6 characters' LBS on 4 devices (padded to 8), shared mesh replicated
+    from jaxgfx import skin
+    from jaxgfx.sweep import sharded_vmap
+    rng = np.random.default_rng(0)
+    t = rng.normal(size=(6, 5, 3, 4)).astype(np.float32)
+    j = rng.integers(0, 5, (40, 4)).astype(np.int32)
+    w = rng.random((40, 4)).astype(np.float32)
+    w /= w.sum(1, keepdims=True)
+    pv = rng.normal(size=(40, 3)).astype(np.float32)
+    lbs = sharded_vmap(skin.linear_blend_skinning, in_axes=(0, None, None, None, None))
+    sp, sn = lbs(t, *lbs.replicate((pv, pv, j, w)))
+    lbs1 = sharded_vmap(skin.linear_blend_skinning, (0, None, None, None, None), chunk=1)
+    cp, cn = lbs1(t, *lbs1.replicate((pv, pv, j, w)))  # each device loops over its items
+    loop = [skin.linear_blend_skinning(t[k], pv, pv, j, w) for k in range(6)]
+    lbs_diff = max(
+        float(np.abs(np.asarray(o) - np.asarray(r)).max())
+        for k in range(6) for o, r in zip((sp[k], sn[k], cp[k], cn[k]), loop[k] * 2)
+    )
     fa, fb = np.isfinite(a["depth"]), np.isfinite(b["depth"])
     da = np.where(fa, a["depth"], 1.0)
     db = np.where(fa, b["depth"], 1.0)
@@ -58,6 +76,8 @@ SHARDED = textwrap.dedent(
         depth_rel_diff=float(np.max(np.abs(da - db) / da)),
         direct_diff=float(np.abs(direct["color"] - a["color"][:4]).max()),
         n=int(a["color"].shape[0]),
+        lbs_shape=list(sp.shape), lbs_diff=lbs_diff,
+        lbs_devices=len(lbs.mesh.devices.flat),
     )))
     """
 )
@@ -89,6 +109,9 @@ def test_sharded_sweep_equals_unsharded(tmp_path):
     assert r["depth_rel_diff"] <= 1e-6
     assert r["color_max_diff"] <= 1e-5
     assert r["direct_diff"] <= 1e-5
+    # sharded_vmap over 4 devices (batch 6, padded) equals a loop over the characters
+    assert r["lbs_shape"] == [6, 40, 3] and r["lbs_devices"] == 4
+    assert r["lbs_diff"] <= 1e-5
 
 
 def test_sweep_killed_halfway_resumes(tmp_path):
@@ -234,3 +257,16 @@ def test_sweep_and_sharded_renderer_compile_once(tmp_path, compile_counter):
     assert c.count == 0
     np.testing.assert_array_equal(second["color"], params[2:4, :, None] * [0.5, 4.0])
     assert not np.array_equal(first["color"], second["color"])
+
+
+def test_sharded_vmap_checks_in_axes():
+    from jaxgfx.sweep import sharded_vmap
+
+    one = lambda a, b: a + b  # noqa: E731
+    for bad in (0, (None, None), (1, None), [0, "x"]):
+        with pytest.raises(ValueError, match="in_axes"):
+            sharded_vmap(one, in_axes=bad)
+    f = sharded_vmap(one, in_axes=(0, None), devices=jax.devices()[:1])
+    np.testing.assert_array_equal(f(np.arange(3.0), 1.0), [1.0, 2.0, 3.0])
+    with pytest.raises(TypeError, match="in_axes"):
+        f(np.arange(3.0))

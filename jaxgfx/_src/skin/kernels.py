@@ -31,8 +31,53 @@ Packing two coefficients (LBS) or a row and its slope (sampled) into one complex
 the gathers but not the time: 50.2 against 56.1 ms (LBS) and 83.7 against 86.8 ms (sampled), 80
 poses x 12,546 vertices: dropped.
 For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
-row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices): not kept, the
-kernel keeps the reference's arithmetic.
+row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices) in session 7, and
+lost 30 % in session 9 (below): not kept, the kernel keeps the reference's arithmetic.
+
+Session 9 (CPU time of one process, so the numbers hold on a busy box; 80 poses x 12,546
+vertices vmapped, 64 bones, 4 influences unless said):
+
+* An elemental loop computes each output element on its own, so a (V, 3) output whose every
+  component needs all three (the normal's length) recomputes all of them: normalizing in the
+  gather loop cost 3x the normal's gathers (31 against 15 ms for the normals with 6 bones
+  and 3 influences).  The normals are now written raw and normalized in a second pass:
+  52 -> 30 ms.  On one 1 M-vertex pose the fused form was as fast (26-32 ms either way).
+* Gathers from a table batched over P poses read P x 12 x J floats (245 KB for 80 x 64 bones):
+  vmapping all poses at once spills the table from the cache.  ``lax.map`` in chunks of 4-16
+  poses: 48 -> 25-26 ms (``jaxgfx.sweep.sharded_vmap(..., chunk=)``).  Chunking the vertices of
+  one pose instead (``lax.map`` over 1-16 k vertex blocks) was 3-4x slower: dropped.
+* Sharing the blended coefficients of positions and normals in one (V, 6) output: 313 against
+  73 ms wall on one 1 M-vertex pose (the multi-use gathers again): dropped.
+* :func:`style_offsets`: the style path in this layout, 107-113 -> 57 ms for both envelopes.
+
+Sampled skinning against LBS (issue 16's ``sampled >= 0.9x LBS``; the limb: 80 poses x 12,546
+vertices, 3 influences, S = 32, 6 bones for LBS; CPU time and wall of one process, best of 7-9
+interleaved rounds, one XLA device, load 3.4-4.8 on 2 cores; every variant equal to this kernel
+to 1e-6).  The kept kernel runs at 0.62-0.71x LBS (34.4 against 24.5 ms CPU time at best):
+
+* What the time goes to (the optimized LLVM IR of the position loop): XLA:CPU emits a scalar
+  loop over (pose, vertex) with the 3 components unrolled, no SIMD and no FMA contraction.  Per
+  vertex and pose the sampled position loop does 84 loads and ~165 float ops (72 table loads:
+  row and slope of 12 coefficients for 3 influences), LBS 45 loads and ~93 ops: positions alone
+  take 18.7 against 12.0 ms.  Pass 1 (the table) is 1.9 against 0.6 ms for the 80 poses.
+* (a) row and slope side by side, a (12, R, 2) table with one (V, 2) gather per coefficient and
+  influence: 0.70x (35.3 ms), with ``mode='promise_in_bounds'`` 0.71x: as fast as two gathers
+  (the loop loads each float on its own either way).
+* (b) the lerp folded into the weights (2I influences ``r``, ``r + 1`` with weights
+  ``w (1 - f)``, ``w f`` of a plain 12-column table, the LBS kernel): 0.47x (52.0 ms), 0.49x
+  with the 2I indices and weights precomputed: twice the index and weight loads and clamps.
+* The 12 blended coefficients written out once and shared by positions and normals ((12, V) or
+  (V, 12) per pose): 0.23-0.27x (106-121 ms); they are 48 MB for 80 poses, written and read.
+* Positions and raw normals from the same 12 coefficients in one loop, written as one (V, 2, 3)
+  or (V, 3, 2) array and split in the normalizing pass: sampled 33.5 against 34.7 ms (0.72x) and
+  35.8 against 34.6 ms (0.68x); LBS in the (V, 3, 2) form took 21.2 against 24.5 ms (one run at
+  load 9-10, not adopted: it would move the bar, not the ratio).
+* Poses minor, a (C, R, P) table gathered as (V, P) arrays (a vertex's indices and weights are
+  fixed along the minor axis), then transposed to (P, V, 3): LBS 24.9 -> 17.7 ms, sampled
+  34.6 -> 35.5 ms, so 0.50x.
+* On 2 devices (``sharded_vmap``, chunks of 4 / 8 / 20 / 40 poses): 0.50 / 0.45 / 0.51 / 0.45x
+  the chunk-8 LBS; pass 1 runs once per chunk there (about 45 small ops each): 4.4 against
+  1.4 ms.
 """
 
 from __future__ import annotations
@@ -42,8 +87,9 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxgfx._src.skin.geometry import _EPS_SQ
+from jaxgfx._src.skin.styles import Style, _cross_section, sample_curve, sample_texture
 
-__all__ = ["blend_skin"]
+__all__ = ["blend_skin", "style_offsets"]
 
 
 def _coefficients(columns, index, weight, frac) -> list[jax.Array]:
@@ -99,6 +145,109 @@ def blend_skin(
     pos = jnp.stack([px + m[9], py + m[10], pz + m[11]], axis=-1)
     # fresh gathers for the normals: one consumer per gather, so each set fuses into one loop
     index, weight, frac = lax.optimization_barrier((index, weight, frac))
-    nx, ny, nz = _linear(_coefficients(columns, index, weight, frac), normals)
+    raw = jnp.stack(_linear(_coefficients(columns, index, weight, frac), normals), axis=-1)
+    # Normalize in a second pass over the written (V, 3) normals.  Fused into the gather loop,
+    # every output component would recompute all three components for the length (3x the
+    # normal's gathers): 52 -> 30 ms CPU time for 80 poses x 12,546 vertices, 64 bones, I = 4.
+    raw = lax.optimization_barrier(raw)
+    nx, ny, nz = raw[..., 0], raw[..., 1], raw[..., 2]
     s = lax.rsqrt(jnp.maximum(nx * nx + ny * ny + nz * nz, _EPS_SQ))
     return pos, jnp.stack([nx * s, ny * s, nz * s], axis=-1)
+
+
+def style_offsets(
+    style_table: jax.Array,
+    style: Style,
+    samples: int,
+    coord: jax.Array,
+    weight: jax.Array,
+    local: jax.Array,
+    local_normal: jax.Array,
+    *,
+    radial: bool,
+    rect: bool,
+) -> tuple[jax.Array, jax.Array]:
+    """:func:`style_offset_sampled` of every vertex in structure-of-arrays layout.
+
+    What does not depend on the pose (the cross-section angle, the texture and curve samples at
+    the vertex's ``x`` and ``α``) is the per-vertex reference's arithmetic vmapped over the
+    vertices; under ``vmap`` over poses it is computed once.  Per pose the kernel gathers the
+    dominant spline's pose weights and interpolated rotation as (V,) scalars, as
+    :func:`blend_skin` does, with fresh gathers for the normal offset.
+
+    Args:
+        style_table: (K * S, 20) style table from :func:`sample_spline_frames`.
+        style: the style.
+        samples: S.
+        coord: (V,) table coordinate of each vertex's dominant influence.
+        weight: (V,) its weight.
+        local, local_normal: (V, 3) its ``v'`` and spline-space normal.
+        radial, rect: which envelopes to apply.
+
+    Returns:
+        Position offsets (V, 3) and normal offsets (V, 3), as the reference's.
+    """
+    r0 = jnp.floor(coord)
+    t = coord - r0
+    row = r0.astype(jnp.int32)
+    x = (coord - jnp.floor(r0 / samples) * samples) / (samples - 1)
+    cos_a, sin_a, alpha_n = jax.vmap(_cross_section, in_axes=(0, None))(local, style.hollow)
+    tex = (
+        jax.vmap(sample_texture, in_axes=(None, 0, 0))(style.textures, x, alpha_n)
+        if radial
+        else None
+    )
+    crv = jax.vmap(sample_curve, in_axes=(None, 0))(style.curves, x) if rect else None
+    front = jnp.maximum(-cos_a, 0.0)
+    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
+
+    def factors(row) -> list[jax.Array]:
+        """The envelope factors of ``sx = s_rad s_l`` and ``sy = s_rad s_f``, each (V,)."""
+        bend, twist = cols[18][row], cols[19][row]
+        out = []
+        if radial:
+            assert tex is not None
+            w0, w1 = front * bend, sin_a * bend
+            w_sum = w0 + w1 + twist
+            out.append(
+                (w0 * tex[:, 0] + w1 * tex[:, 1] + twist * tex[:, 2]) / jnp.maximum(1.0, w_sum)
+                + jnp.maximum(1.0 - w_sum, 0.0)
+            )
+        if rect:
+            assert crv is not None
+            out.append(_blend2(crv[:, 1], crv[:, 2], bend, twist))  # s_l
+            out.append(_blend2(crv[:, 0], crv[:, 2], front * bend, twist))  # s_f
+        return out
+
+    def rotate(row, t, d0, d1):
+        # w R(x) (d0, d1, 0): the third column meets a zero (styles leave v'_z alone)
+        rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
+        return jnp.stack([weight * (rc[k] * d0 + rc[3 + k] * d1) for k in range(3)], axis=-1)
+
+    # The factors once per vertex and pose, written out as one (F, V) array: fused into the
+    # rotation (or stacked with the offsets), every output component recomputes them and their
+    # gathers (4 to 6 times): 88 -> 57 ms CPU time for 80 poses x 12,546 vertices, both
+    # envelopes (the vmapped reference: 107-113 ms).
+    fs = factors(row)
+    if not fs:
+        raise ValueError("style_offsets: radial or rect must be True")
+    f = lax.optimization_barrier(jnp.stack(fs))
+    one = jnp.float32(1.0)
+    s_rad = f[0] if radial else one
+    sx = s_rad * (f[-2] if rect else one)
+    sy = s_rad * (f[-1] if rect else one)
+    h = style.hollow
+    lx, ly = local[:, 0], local[:, 1]
+    dpos = rotate(row, t, lx * sx - lx, ((ly - h) * sy + h) - ly)
+    # fresh gathers for the normals (one consumer per gather, see blend_skin)
+    row, t = lax.optimization_barrier((row, t))
+    nx, ny = local_normal[:, 0], local_normal[:, 1]
+    safe_sx = jnp.where(sx > 1e-6, sx, 1.0)
+    safe_sy = jnp.where(sy > 1e-6, sy, 1.0)
+    return dpos, rotate(row, t, nx / safe_sx - nx, ny / safe_sy - ny)
+
+
+def _blend2(s0, s1, w0, w1):
+    """Eq. 5.9 / 5.12's blend of two samples, as ``styles._blend``."""
+    w_sum = w0 + w1
+    return (w0 * s0 + w1 * s1) / jnp.maximum(1.0, w_sum) + jnp.maximum(1.0 - w_sum, 0.0)

@@ -22,7 +22,7 @@ from jax import lax
 from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _normalize
-from jaxgfx._src.skin.kernels import blend_skin
+from jaxgfx._src.skin.kernels import blend_skin, style_offsets
 from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
 from jaxgfx._src.skin.spline import frame_inverse, spline_frames
 from jaxgfx._src.skin.styles import Style, _check_style, _pose_weights, _style_flags, apply_style
@@ -249,14 +249,16 @@ def skin_sampled(
         return pos, nrm
     style = jax.tree_util.tree_map(jnp.asarray, style)
     _check_style(style)
-    dpos, dnrm = jax.vmap(
-        lambda u, w, v, n: style_offset_sampled(
-            style_table, style, samples, u, w, v, n, radial=radial, rect=rect
-        )
-    )(
-        binding.dominant_coord,
-        binding.dominant_weight,
-        binding.dominant_local,
-        binding.dominant_local_normal,
+    # style_offset_sampled over the vertices, in the structure-of-arrays kernel (kernels.py)
+    dpos, dnrm = style_offsets(
+        style_table,
+        style,
+        samples,
+        jnp.asarray(binding.dominant_coord),
+        jnp.asarray(binding.dominant_weight),
+        jnp.asarray(binding.dominant_local),
+        jnp.asarray(binding.dominant_local_normal),
+        radial=radial,
+        rect=rect,
     )
     return pos + dpos, _normalize(nrm + dnrm, jnp.array([0.0, 1.0, 0.0]))
