@@ -29,9 +29,11 @@ what defines the results (parameters, chunking, a hash of the lowered render fun
 output shapes, an optional version string); a different sweep into the same folder is
 refused with a ValueError that names what differs, so results never mix.
 
-XLA:CPU runs one computation on one core; to use every core, give JAX one host device per
-core before it starts, e.g. ``XLA_FLAGS=--xla_force_host_platform_device_count=8``
-(``jaxgfx sweep`` does this itself; see ``--devices``).
+One XLA:CPU device uses other cores only inside large fused loops (its intra-op thread
+pool); the rest of a program runs on one thread.  To keep every core busy,
+give JAX one host device per core before it starts, e.g.
+``XLA_FLAGS=--xla_force_host_platform_device_count=8`` or ``jax.config.update(
+"jax_num_cpu_devices", 8)`` (``jaxgfx sweep`` does this itself; see ``--devices``).
 """
 
 from __future__ import annotations
