@@ -223,7 +223,7 @@ def figure(path: Path, frame_rows: list[dict], batch_rows: list[dict]) -> None:
 
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
     methods = ["jaxgfx", "open3d", "llvmpipe", "trimesh+embree"]
-    labels = [f"{r['mesh'].split(' (')[0]}\n{r['size']}" for r in frame_rows]
+    labels = [f"{r['mesh'].split(' ')[0]}\n{r['size']}" for r in frame_rows]
     x = np.arange(len(frame_rows))
     for i, k in enumerate(methods):
         ys = [r.get(f"{k}_ms", np.nan) for r in frame_rows]
