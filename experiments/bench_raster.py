@@ -1,19 +1,37 @@
-"""Rasterizer throughput vs trimesh ray casting of the same depth image.
+"""Rasterizer speed beside the CPU renderers a user would pick instead, same run, same pixels.
 
-For the Stanford bunny (69 k triangles, from ../shared/data, or an icosphere of
-similar size when the data is absent) and a procedural ~700 k-triangle terrain
-heightfield (thesis Table 3.1 scale), at 512x384 and 1024x768: compile time,
-ms per frame, triangles per second, and, in the same run, trimesh's ray
-caster (the independent peer) on a random sample of the frame's pixel rays,
-extrapolated to the whole frame.  The agreement column checks both produce
-the same depth on the sampled pixels.
+Two tables, both with depth agreement (the share of pixels where the two depth images agree:
+both empty, or both hit within ``RTOL`` relative camera z), so every ratio compares the same
+work:
+
+1. One frame: the Stanford bunny (69 k triangles, from ../shared/data, or an icosphere when
+   the data is absent) and a procedural ~718 k-triangle heightfield (thesis Table 3.1 scale),
+   at 512x384 and 1024x768: ``jax.jit(rasterize)`` against open3d's ``RaycastingScene``
+   (Embree, every core), Mesa llvmpipe (OpenGL through a moderngl EGL context, depth read
+   back inside the timing) and trimesh's ray caster on embreex (one thread).
+2. Batches: the bunny at 512x384 from 1, 8, 32 and 128 orbit cameras, frames per second of
+   ``jax.jit(jax.vmap(rasterize))``, a Python loop over the single-camera jit, the sharded
+   renderer (:func:`jaxgfx.sweep.sharded_renderer`, one host device per core; results come
+   back as NumPy) and the peers (open3d casts the whole batch in one call, llvmpipe draws and
+   reads back one frame after another).
+
+Timing: compile excluded; the methods are timed in interleaved rounds (each round runs every
+method once) and the best round is reported, so load from other processes hits all alike.
+The machine line gives the load.  Peer set-up (BVH, vertex buffers, each camera's rays or
+matrix) is outside the timing; see ``experiments/_raster_peers.py``.  Peers come with
+``pip install '.[bench]'`` and the OS packages ``libegl1 libgl1-mesa-dri libegl-mesa0``
+(llvmpipe) and ``libusb-1.0-0`` (open3d); a missing peer is skipped with the printed reason.
 
     python -m experiments.bench_raster [--quick] [--out DIR]
+
+writes ``table.md``/``table.json`` (both tables), ``bench_raster.png`` (the figure) and depth
+images (``*_depth.png``: jaxgfx; ``*_llvmpipe_depth.png``: the GL peer, for a look).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -21,38 +39,48 @@ import jax
 import numpy as np
 import trimesh
 
-from experiments.common import DATA, machine, markdown_table, time_jitted, write_table
-from jaxgfx.camera import camera_basis, look_at, pixel_rays
-from jaxgfx.compose import depth_image
-from jaxgfx.io import load_mesh, save_png
-from jaxgfx.raster import rasterize
-from jaxgfx.scene import grid_faces
+from experiments.common import DATA, machine, markdown_table, write_table
+
+RTOL = 1e-3  # depth agreement: |z_jaxgfx - z_peer| <= RTOL * z (float32 GL depth: ~3e-5)
+BATCHES = (1, 8, 32, 128)
 
 
 def heightfield(n: int) -> trimesh.Trimesh:
     """An n x n-vertex rolling terrain, 2 (n-1)^2 triangles, deterministic."""
+    from jaxgfx.scene import grid_faces
+
     x, z = np.meshgrid(np.linspace(-50, 50, n), np.linspace(0, 100, n))
     y = 3 * np.sin(x / 5) * np.cos(z / 7) + 1.5 * np.sin(x / 1.7 + z / 2.3)
     v = np.stack([x, y, z], -1).reshape(-1, 3)
     return trimesh.Trimesh(v, grid_faces(n), process=False)
 
 
+def bunny(quick: bool = False) -> tuple[str, trimesh.Trimesh]:
+    """The Stanford bunny (its 3.8k-triangle version with ``quick``) or an icosphere."""
+    from jaxgfx.io import load_mesh
+
+    path = DATA / "meshes" / ("bun_zipper_res3.ply" if quick else "bun_zipper.ply")
+    if path.exists():
+        m = load_mesh(path)
+        return f"bunny (Stanford, {len(m.faces) / 1000:.0f}k)", m
+    ico = trimesh.creation.icosphere(subdivisions=4 if quick else 6)
+    return "icosphere (bunny data absent)", ico
+
+
 def scenes(quick: bool):
-    bunny = DATA / "meshes" / "bun_zipper.ply"
-    if bunny.exists():
-        m = load_mesh(bunny)
-        name = "bunny (Stanford, 69k)"
-    else:
-        m = trimesh.creation.icosphere(subdivisions=6)
-        name = "icosphere (bunny data absent)"
+    """(name, tag, mesh, view) for the one-frame table."""
+    name, m = bunny(quick)
     lo, hi = m.bounds
     c = 0.5 * (lo + hi)
     r = 0.5 * float(np.linalg.norm(hi - lo))
-    yield name, m, dict(eye=c + r * np.array([0.4, 0.4, 2.4]), target=c, near=0.01 * r, far=100 * r)
-    n = 200 if quick else 600
-    t = heightfield(n)
+    view = dict(eye=c + r * np.array([0.4, 0.4, 2.4]), target=c, near=0.01 * r, far=100 * r)
+    yield name, "bunny", m, view
+    if quick:
+        return
+    t = heightfield(600)
     yield (
         f"terrain heightfield ({len(t.faces) // 1000}k)",
+        "terrain",
         t,
         dict(
             eye=np.array([0.0, 12.0, -5.0]), target=np.array([0.0, 0.0, 40.0]), near=0.1, far=500.0
@@ -60,95 +88,239 @@ def scenes(quick: bool):
     )
 
 
-def peer_depth(mesh, cam, max_rays: int, budget_s: float, seed: int = 0):
-    """trimesh ray casting of a random sample of the camera's pixel rays.
+def agreement(ours: np.ndarray, ref: np.ndarray) -> float:
+    """Share of pixels where both depth images are empty, or both hit within ``RTOL``."""
+    ours, ref = np.asarray(ours, np.float64), np.asarray(ref, np.float64)
+    a, b = np.isfinite(ours), np.isfinite(ref)
+    both = a & b
+    ours, ref = np.where(both, ours, 0.0), np.where(both, ref, 0.0)
+    close = np.abs(ours - ref) <= RTOL * np.abs(ours)
+    return float(np.mean((~a & ~b) | (both & close)))
 
-    Rays are cast in batches of 64 until ``max_rays`` or ``budget_s`` seconds
-    are reached (trimesh without embree is slow on long grazing rays).
 
-    Returns:
-        (ray indices, depth per sampled ray, seconds spent).
-    """
-    o, d = (np.asarray(a, np.float64).reshape(-1, 3) for a in pixel_rays(cam, normalize=True))
-    order = np.random.default_rng(seed).permutation(len(o))[:max_rays]
-    fwd = np.asarray(camera_basis(cam)[2], np.float64)
-    depth = np.full(len(order), np.inf)
-    spent, done = 0.0, 0
-    while done < len(order) and spent < budget_s:
-        sl = order[done : done + 64]
+def best_rounds(methods: dict, rounds: int) -> tuple[dict, dict]:
+    """Runs every method once per round, interleaved; returns (best seconds, last outputs)."""
+    best = {k: float("inf") for k in methods}
+    outs: dict = {}
+    for _ in range(rounds):
+        for k, fn in methods.items():
+            t0 = time.perf_counter()
+            outs[k] = fn()
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return best, outs
+
+
+def one_frame_table(args, peers_for, raster) -> list[dict]:
+    from jaxgfx.camera import look_at
+    from jaxgfx.compose import depth_image
+    from jaxgfx.io import save_png
+
+    sizes = [(128, 96)] if args.quick else [(512, 384), (1024, 768)]
+    rows = []
+    for name, tag, mesh, view in scenes(args.quick):
+        v = np.asarray(mesh.vertices, np.float32)
+        f = np.asarray(mesh.faces, np.int32)
+        peers = peers_for(v, f)
+        for w, h in sizes:
+            cam = look_at(view["eye"], view["target"], 50.0, w, h, view["near"], view["far"])
+            t0 = time.perf_counter()
+            jax.block_until_ready(raster(cam, v, f, v))
+            compile_s = time.perf_counter() - t0
+            states = {p.name: p.prepare([cam]) for p in peers}
+            methods = {
+                "jaxgfx": lambda cam=cam, v=v, f=f: jax.block_until_ready(raster(cam, v, f, v))
+            }
+            for p in peers:
+                methods[p.name] = lambda p=p, s=states[p.name]: p.run(s)
+                p.run(states[p.name])  # warm-up (first GL draw compiles shaders, ...)
+            best, outs = best_rounds(methods, args.rounds)
+            depth = np.asarray(outs["jaxgfx"].depth)
+            row = dict(
+                mesh=name,
+                triangles=len(f),
+                size=f"{w}x{h}",
+                compile_s=compile_s - best["jaxgfx"],
+                jaxgfx_ms=best["jaxgfx"] * 1e3,
+                coverage=f"{np.isfinite(depth).mean() * 100:.1f}%",
+            )
+            for p in peers:
+                row[f"{p.name}_ms"] = best[p.name] * 1e3
+                row[f"agree_{p.name}"] = f"{agreement(depth, outs[p.name][0]) * 100:.3f}%"
+            if "llvmpipe" in best:
+                row["jaxgfx/llvmpipe"] = best["jaxgfx"] / best["llvmpipe"]
+            rows.append(row)
+            if args.out:
+                save_png(Path(args.out) / f"{tag}_{w}x{h}_depth.png", depth_image(depth))
+                if "llvmpipe" in outs:
+                    save_png(
+                        Path(args.out) / f"{tag}_{w}x{h}_llvmpipe_depth.png",
+                        depth_image(outs["llvmpipe"][0].astype(np.float32)),
+                    )
+    return rows
+
+
+def batch_table(args, peers_for, single) -> list[dict]:
+    from jaxgfx.camera import orbit_cameras
+    from jaxgfx.raster import rasterize
+    from jaxgfx.sweep import sharded_renderer
+
+    _, m = bunny(args.quick)
+    v = np.asarray(m.vertices, np.float32)
+    f = np.asarray(m.faces, np.int32)
+    c = 0.5 * (m.bounds[0] + m.bounds[1])
+    r = 0.5 * float(np.linalg.norm(m.bounds[1] - m.bounds[0]))
+    (w, h), batches = ((128, 96), (2,)) if args.quick else ((512, 384), BATCHES)
+    peers = [p for p in peers_for(v, f) if p.name != "trimesh+embree"]  # one thread: too slow
+
+    def one(cam):  # the sharded renderer's item function closes over the mesh
+        return rasterize(cam, v, f, v)
+
+    batched = jax.jit(jax.vmap(rasterize, in_axes=(0, None, None, None)))
+    ndev = len(jax.devices())
+    rows = []
+    for b in batches:
+        cams = orbit_cameras(c, 2.4 * r, b, 20.0, 50.0, w, h, 0.01 * r, 100 * r)
+        each = [jax.tree_util.tree_map(lambda x, i=i: x[i], cams) for i in range(b)]
+        devs = max(d for d in range(1, ndev + 1) if b % d == 0)
+        sharded = sharded_renderer(one, jax.devices()[:devs])
+        methods = {
+            "vmap": lambda cams=cams: jax.block_until_ready(batched(cams, v, f, v)),
+            "loop": lambda each=each: jax.block_until_ready([single(c, v, f, v) for c in each]),
+            "sharded": lambda cams=cams, sharded=sharded: sharded(cams),
+        }
         t0 = time.perf_counter()
-        loc, ri, _ = mesh.ray.intersects_location(o[sl], d[sl], multiple_hits=False)
-        spent += time.perf_counter() - t0
-        depth[done + ri] = (loc - o[sl][ri]) @ fwd
-        done += len(sl)
-    return order[:done], depth[:done], spent
+        for fn in methods.values():
+            fn()  # compile
+        compile_s = time.perf_counter() - t0
+        for p in peers:
+            state = p.prepare(each)
+            methods[p.name] = lambda p=p, state=state: p.run(state)
+            p.run(state)
+        best, outs = best_rounds(methods, args.rounds)
+        depth = np.asarray(outs["vmap"].depth)
+        loop_depth = np.stack([np.asarray(o.depth) for o in outs["loop"]])
+        row = dict(cameras=b, size=f"{w}x{h}", devices=devs, compile_s=compile_s)
+        for k, t in best.items():
+            row[f"{k}_fps"] = b / t
+        row["vmap/loop"] = best["loop"] / best["vmap"]
+        row["vmap_vs_loop_coverage"] = bool(
+            np.array_equal(np.isfinite(depth), np.isfinite(loop_depth))
+        )
+        for p in peers:
+            row[f"agree_{p.name}"] = f"{agreement(depth, outs[p.name]) * 100:.3f}%"
+        rows.append(row)
+    return rows
+
+
+def figure(path: Path, frame_rows: list[dict], batch_rows: list[dict]) -> None:
+    """Left: ms per frame for each scene and size; right: frames/s against the batch size."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxgfx.io import atomic_write
+
+    fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
+    methods = ["jaxgfx", "open3d", "llvmpipe", "trimesh+embree"]
+    labels = [f"{r['mesh'].split(' ')[0]}\n{r['size']}" for r in frame_rows]
+    x = np.arange(len(frame_rows))
+    for i, k in enumerate(methods):
+        ys = [r.get(f"{k}_ms", np.nan) for r in frame_rows]
+        ax[0].bar(x + (i - 1.5) * 0.2, ys, 0.2, label=k)
+    ax[0].set_xticks(x, labels)
+    ax[0].set_yscale("log")
+    ax[0].set_ylabel("ms per frame (lower is better)")
+    ax[0].set_title("one frame")
+    ax[0].legend()
+    bs = [r["cameras"] for r in batch_rows]
+    for k in ["vmap", "loop", "sharded", "open3d", "llvmpipe"]:
+        ys = [r.get(f"{k}_fps", np.nan) for r in batch_rows]
+        if not np.all(np.isnan(ys)):
+            name = {"vmap": "jit(vmap(rasterize))", "loop": "loop of jit(rasterize)"}.get(k, k)
+            ax[1].plot(bs, ys, "o-", label=name)
+    ax[1].set_xscale("log", base=2)
+    ax[1].set_yscale("log")
+    ax[1].set_xlabel("cameras per batch")
+    ax[1].set_ylabel("frames / s (higher is better)")
+    ax[1].set_title(f"bunny {batch_rows[0]['size']}, batches")
+    ax[1].legend()
+    fig.suptitle(machine(), fontsize=8)
+    fig.tight_layout()
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument("--quick", action="store_true", help="small sizes, < 1 minute on 2 CPU cores")
+    ap.add_argument(
+        "--quick", action="store_true", help="3.8k-triangle bunny only, 128x96, a batch of 2"
+    )
     ap.add_argument("--out", default=None, help="directory for table (md/json) and figures (png)")
+    ap.add_argument(
+        "--rounds", type=int, default=None, help="interleaved timing rounds (default 5; quick 2)"
+    )
     args = ap.parse_args(argv)
-    sizes = [(256, 192)] if args.quick else [(512, 384), (1024, 768)]
-    n_rays, budget = (512, 3.0) if args.quick else (20000, 30.0)
-    raster = jax.jit(rasterize)
-    rows = []
-    for name, mesh, view in scenes(args.quick):
-        v = np.asarray(mesh.vertices, np.float32)
-        f = np.asarray(mesh.faces, np.int32)
-        for w, h in sizes:
-            cam = look_at(view["eye"], view["target"], 50.0, w, h, view["near"], view["far"])
-            compile_s, steady, out = time_jitted(
-                raster, cam, v, f, v, repeats=2 if args.quick else 3
-            )
-            idx, ref, peer_s = peer_depth(mesh, cam, n_rays, budget)
-            ours = np.asarray(out.depth).reshape(-1)[idx]
-            fin = np.isfinite(ref)
-            span = (ref[fin].max() - ref[fin].min()) if fin.any() else 1.0
-            agree = np.mean(
-                (np.isinf(ours) & ~fin)
-                | (
-                    fin
-                    & np.isfinite(ours)
-                    & (np.abs(np.where(fin, ours, 0) - np.where(fin, ref, 0)) <= 1e-3 * span)
-                )
-            )
-            peer_frame = peer_s * (w * h) / len(idx)
-            rows.append(
-                dict(
-                    mesh=name,
-                    triangles=len(f),
-                    size=f"{w}x{h}",
-                    compile_s=f"{compile_s - steady:.2f}",
-                    ms_per_frame=f"{steady * 1e3:.1f}",
-                    Mtri_per_s=f"{len(f) / steady / 1e6:.2f}",
-                    trimesh_ms_per_frame=f"{peer_frame * 1e3:.0f}",
-                    speedup_vs_trimesh=f"{peer_frame / steady:.1f}x",
-                    peer_rays=len(idx),
-                    depth_agree=f"{agree * 100:.2f}%",
-                    coverage=f"{np.isfinite(np.asarray(out.depth)).mean() * 100:.1f}%",
-                )
-            )
-            if args.out:
-                tag = "bunny" if "bunny" in name or "ico" in name else "terrain"
-                save_png(Path(args.out) / f"{tag}_{w}x{h}_depth.png", depth_image(out.depth))
+    args.rounds = args.rounds or (2 if args.quick else 5)
+    # One host device per core for the sharded renderer, before JAX's backends start.
+    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        jax.config.update("jax_num_cpu_devices", _cores())
+    from experiments._raster_peers import load_peers
+    from jaxgfx.raster import rasterize
+
+    skipped: dict = {}
+
+    def peers_for(v, f):
+        peers, why = load_peers(v, f)
+        skipped.update(why)
+        return peers
+
+    raster = jax.jit(rasterize)  # one jit for both tables: equal shapes compile once
+    frame_rows = one_frame_table(args, peers_for, raster)
+    batch_rows = batch_table(args, peers_for, raster)
     meta = dict(
         machine=machine(),
         command="python -m experiments.bench_raster" + (" --quick" if args.quick else ""),
-        trimesh_rays_max=n_rays,
-        trimesh_budget_s=budget,
-        note="compile_s excludes one steady run; trimesh time extrapolated from the sampled rays",
+        rounds=args.rounds,
+        depth_rtol=RTOL,
+        skipped_peers=skipped,
+        note="best of interleaved rounds, compile excluded; agreement: both empty or both "
+        f"hit within {RTOL:g} relative camera z",
     )
-    cols = [
-        "mesh", "triangles", "size", "compile_s", "ms_per_frame", "Mtri_per_s",
-        "trimesh_ms_per_frame", "speedup_vs_trimesh", "peer_rays", "depth_agree", "coverage",
-    ]  # fmt: skip
-    md = markdown_table(rows, cols) + f"\n\nmachine: {meta['machine']}\n\n{meta['note']}\n"
+    cols = ["mesh", "triangles", "size", "compile_s", "jaxgfx_ms"]
+    cols += [c for c in frame_rows[0] if c.endswith("_ms") and c != "jaxgfx_ms"]
+    cols += [c for c in ("jaxgfx/llvmpipe",) if c in frame_rows[0]]
+    cols += [c for c in frame_rows[0] if c.startswith("agree_")] + ["coverage"]
+    bcols = ["cameras", "size", "devices"] + [c for c in batch_rows[0] if c.endswith("_fps")]
+    bcols += ["vmap/loop", "vmap_vs_loop_coverage"]
+    bcols += [c for c in batch_rows[0] if c.startswith("agree_")]
+    skip_text = "".join(f"\n\nskipped peer {k}: {why}" for k, why in skipped.items())
+    md = (
+        "## One frame (ms)\n\n"
+        + markdown_table(frame_rows, cols)
+        + "\n\n## Batches (frames/s; agreement of the vmap frames)\n\n"
+        + markdown_table(batch_rows, bcols)
+        + f"\n\nmachine: {meta['machine']}; {args.rounds} rounds\n\n{meta['note']}{skip_text}\n"
+    )
     print(md)
     if args.out:
-        write_table(args.out, "Rasterizer vs trimesh ray casting", md, dict(meta, rows=rows))
+        write_table(
+            args.out,
+            "Rasterizer vs CPU peers (open3d Embree, Mesa llvmpipe, trimesh+embree)",
+            md,
+            dict(meta, rows=frame_rows, batch_rows=batch_rows),
+        )
+        figure(Path(args.out) / "bench_raster.png", frame_rows, batch_rows)
     return 0
 
 

@@ -11,7 +11,16 @@ user has started JAX's multi-host runtime:
     # ... then call run_sweep() with identical arguments on every host.
 
 With several processes each host computes its shard; results are gathered
-with ``multihost_utils.process_allgather`` and written by process 0 only.
+with ``multihost_utils.process_allgather`` and written by process 0 only.  Process 0 alone
+reads ``out_dir`` (the manifest check and which chunks are done) and broadcasts its decision,
+so every process computes the same chunks even when the others cannot see its disk; the
+``on_chunk`` callback runs on process 0 only.  If a process dies, JAX's coordination service
+stops the others (after ``heartbeat_timeout_seconds``); starting every process again resumes
+from the chunks on process 0's disk.  On CPU the processes talk over TCP with gloo (JAX's
+default ``jax_cpu_collectives_implementation``); ``tests/test_sweep.py`` runs two processes on
+localhost:
+
+    jax.distributed.initialize("localhost:12345", num_processes=2, process_id=i)
 
 Every finished chunk is written atomically as ``chunk_XXXXX.npz`` beside a
 ``manifest.json``; a sweep that is interrupted (even by SIGKILL) and started
@@ -20,9 +29,11 @@ what defines the results (parameters, chunking, a hash of the lowered render fun
 output shapes, an optional version string); a different sweep into the same folder is
 refused with a ValueError that names what differs, so results never mix.
 
-XLA:CPU runs one computation on one core; to use every core, give JAX one host device per
-core before it starts, e.g. ``XLA_FLAGS=--xla_force_host_platform_device_count=8``
-(``jaxgfx sweep`` does this itself; see ``--devices``).
+One XLA:CPU device uses other cores only inside large fused loops (its intra-op thread
+pool); the rest of a program runs on one thread.  To keep every core busy,
+give JAX one host device per core before it starts, e.g.
+``XLA_FLAGS=--xla_force_host_platform_device_count=8`` or ``jax.config.update(
+"jax_num_cpu_devices", 8)`` (``jaxgfx sweep`` does this itself; see ``--devices``).
 """
 
 from __future__ import annotations
@@ -226,6 +237,11 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
     return ShardedMap(mesh, axes, jitted)
 
 
+def _spans_processes(mesh: Mesh) -> bool:
+    """True when ``mesh`` holds devices of more than one process (multi-host)."""
+    return len({d.process_index for d in mesh.devices.flat}) > 1
+
+
 def _run(fn, params, mesh):
     shard = NamedSharding(mesh, PartitionSpec("batch"))
 
@@ -234,7 +250,9 @@ def _run(fn, params, mesh):
         return jax.make_array_from_callback(x.shape, shard, lambda idx: x[idx])
 
     out = fn(jax.tree_util.tree_map(put, params))
-    if jax.process_count() > 1:
+    # Only a mesh over several processes leaves shards this process cannot read; a sweep over
+    # this process's own devices (in a multi-process run) must not wait on the others.
+    if _spans_processes(mesh):
         from jax.experimental import multihost_utils
 
         out = multihost_utils.process_allgather(out, tiled=True)
@@ -330,6 +348,49 @@ def _check_manifest(out_dir: Path, old: dict, new: dict) -> None:
         )
 
 
+def _writes(mesh: Mesh) -> bool:
+    """Whether this process reads and writes the sweep's files: process 0 of a multi-process
+    mesh, or the one process of a mesh over its own devices."""
+    return jax.process_index() == 0 or not _spans_processes(mesh)
+
+
+def _decide(out_dir: Path, manifest: dict, sizes: list[int], mesh: Mesh) -> list[bool]:
+    """Checks ``out_dir``'s manifest and returns which chunks are done, as process 0 sees it.
+
+    Process 0 alone reads ``out_dir`` and, when ``mesh`` spans several processes, broadcasts
+    what it found, so every process computes the same chunks (the sharded program and the
+    gather need all of them) even where the others see another disk or none.
+
+    Raises:
+        SweepMismatch: on every process, when process 0's ``out_dir`` holds another sweep.
+    """
+    mpath = out_dir / "manifest.json"
+    error: SweepMismatch | None = None
+    done = [False] * len(sizes)
+    if _writes(mesh):
+        try:
+            if mpath.exists():
+                _check_manifest(out_dir, json.loads(mpath.read_text()), manifest)
+            else:
+                save_json(mpath, manifest)
+            done = [_chunk_ok(chunk_path(out_dir, k), m) for k, m in enumerate(sizes)]
+        except SweepMismatch as exc:
+            error = exc
+    if _spans_processes(mesh):
+        from jax.experimental import multihost_utils
+
+        state = np.asarray([error is not None, *done], np.int32)
+        state = np.asarray(multihost_utils.broadcast_one_to_all(state))
+        if error is None and state[0]:
+            error = SweepMismatch(
+                out_dir, "process 0 found a different sweep there (its error names the parts)"
+            )
+        done = [bool(x) for x in state[1:]]
+    if error is not None:
+        raise error
+    return done
+
+
 def _chunk_ok(path: Path, n_items: int) -> bool:
     try:
         with np.load(path) as z:
@@ -360,7 +421,8 @@ def run_sweep(
         progress: show a tqdm progress bar.
         on_chunk: optional ``callback(k, start, outputs)`` called after chunk k
             is on disk (e.g. to write per-frame PNGs); also called for chunks
-            found on disk, so derived files are completed on resume.
+            found on disk, so derived files are completed on resume.  With several
+            processes it runs on process 0 only (the one that writes the chunks).
         version: optional label of what ``render_fn`` means (e.g. ``"shading v3"``); stored
             in the manifest and compared on resume, for changes the lowered computation
             cannot see (e.g. an ``on_chunk`` that writes other files).
@@ -402,11 +464,9 @@ def run_sweep(
         "version": version,
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    mpath = out_dir / "manifest.json"
-    if mpath.exists():
-        _check_manifest(out_dir, json.loads(mpath.read_text()), manifest)
-    elif jax.process_index() == 0:
-        save_json(mpath, manifest)
+    sizes = [min(n, (k + 1) * chunk_size) - k * chunk_size for k in range(n_chunks)]
+    done = _decide(out_dir, manifest, sizes, mesh)
+    writer = _writes(mesh)
     fn = jax.jit(
         jax.vmap(render_fn),
         in_shardings=NamedSharding(mesh, PartitionSpec("batch")),
@@ -422,20 +482,20 @@ def run_sweep(
     for k in range(n_chunks):
         start, stop = k * chunk_size, min(n, (k + 1) * chunk_size)
         path = chunk_path(out_dir, k)
-        if _chunk_ok(path, stop - start):
+        if done[k]:
             skipped += 1
-            if on_chunk is not None:
+            if on_chunk is not None and writer:
                 with np.load(path) as z:
                     on_chunk(k, start, {key: z[key] for key in z.files})
         else:
             out = _run(fn, _slice(params, start, stop, chunk_size), mesh)
             out = {key: v[: stop - start] for key, v in out.items()}
-            if jax.process_index() == 0:
+            if writer:
                 with atomic_write(path) as tmp:
                     with open(tmp, "wb") as fh:
                         np.savez(fh, **out)
             computed += 1
-            if on_chunk is not None:
+            if on_chunk is not None and writer:
                 on_chunk(k, start, out)
             if abort_after >= 0 and computed >= abort_after:
                 # Test hook: die like a killed process, with no clean-up at all.

@@ -270,3 +270,117 @@ def test_sharded_vmap_checks_in_axes():
     np.testing.assert_array_equal(f(np.arange(3.0), 1.0), [1.0, 2.0, 3.0])
     with pytest.raises(TypeError, match="in_axes"):
         f(np.arange(3.0))
+
+
+# One process of a 2-process sweep on localhost (argv: process id or -1 for a one-process
+# sweep, coordinator port, out dir).  Each process has one CPU device; the processes meet
+# through jax.distributed (gloo collectives over TCP, JAX's CPU default).  Each process gets
+# its own out dir, as on hosts without a shared disk: only process 0's holds files.
+MULTIPROCESS = textwrap.dedent(
+    """
+    import json, sys
+    import jax
+    pid, port, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+    if pid >= 0:
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        jax.distributed.initialize(
+            f"localhost:{port}", num_processes=2, process_id=pid,
+            initialization_timeout=120, heartbeat_timeout_seconds=5,
+        )
+    import jax.numpy as jnp
+    from jaxgfx.camera import orbit_cameras, pixel_rays
+    from jaxgfx.sweep import run_sweep
+
+    assert jax.device_count() == 2, jax.devices()
+    cams = orbit_cameras([0, 0, 0], 4.0, 5, width=24, height=16)
+
+    def one(cam):  # a unit sphere ray cast: cheap to compile, camera-dependent frames
+        o, d = pixel_rays(cam, normalize=True)
+        b = jnp.sum(o * d, -1)
+        disc = b * b - jnp.sum(o * o, -1) + 1.0
+        t = jnp.where(disc > 0, -b - jnp.sqrt(jnp.maximum(disc, 0.0)), jnp.inf)
+        return {"t": t, "shade": (255 * jnp.exp(-t)).astype(jnp.uint8)}
+
+    s = run_sweep(one, cams, out, chunk_size=2, progress=False)
+    print(json.dumps(dict(s, process=jax.process_index(), processes=jax.process_count())))
+    """
+)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def _two_processes(out, kill_after=None):
+    """Starts processes 0 and 1 of the sweep, process 1 writing into ``out`` + ``_1`` (another
+    host's disk); returns their (returncode, stdout, stderr)."""
+    port = str(_free_port())
+    procs = []
+    for pid in (0, 1):
+        extra = {"JAXGFX_SWEEP_KILL_AFTER": str(kill_after)} if kill_after and pid == 1 else {}
+        procs.append(
+            subprocess.Popen(
+                [sys.executable, "-c", MULTIPROCESS, str(pid), port, f"{out}{'_1' * pid}"],
+                env=_env(1, **extra),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        )
+    results = []
+    for p in procs:
+        try:
+            so, se = p.communicate(timeout=120)  # the old sweep hung here
+        except subprocess.TimeoutExpired:
+            for q in procs:
+                q.kill()
+            raise
+        results.append((p.returncode, so, se))
+    return results
+
+
+def _chunks(out):
+    files = sorted(out.glob("chunk_*.npz"))
+    return {f.name: {k: v for k, v in np.load(f).items()} for f in files}
+
+
+def test_two_processes_equal_one_and_resume_after_a_kill(tmp_path):
+    """Acceptance (issue 14): 2 processes joined by jax.distributed render the same files as a
+    one-process sweep over 2 host devices; after one process is killed mid-sweep (SIGKILL) the
+    other is stopped by the coordination service, and rerunning both completes the sweep."""
+    ref = subprocess.run(
+        [sys.executable, "-c", MULTIPROCESS, "-1", "0", str(tmp_path / "one")],
+        env=_env(2),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    assert json.loads(ref.stdout.strip().splitlines()[-1])["computed"] == 3
+    out = tmp_path / "two"
+    (r0, _, e0), (r1, _, e1) = _two_processes(out, kill_after=1)
+    assert r1 == -9, e1[-3000:]  # process 1 died after its first chunk, with no clean-up
+    assert r0 != 0, e0[-3000:]  # process 0 did not hang: the coordination service stopped it
+    left = sorted(p.name for p in out.glob("chunk_*.npz"))
+    assert 1 <= len(left) < 3, left
+    assert not [p for p in out.iterdir() if ".tmp" in p.name]
+    runs = _two_processes(out)
+    for rc, _, se in runs:
+        assert rc == 0, se[-3000:]
+    summaries = [json.loads(so.strip().splitlines()[-1]) for _, so, _ in runs]
+    for pid, s in enumerate(summaries):
+        assert (s["process"], s["processes"], s["devices"]) == (pid, 2, 2)
+        # every process skipped exactly the chunks on process 0's disk
+        assert (s["skipped"], s["computed"]) == (len(left), 3 - len(left))
+    assert (out / "manifest.json").read_bytes() == (tmp_path / "one" / "manifest.json").read_bytes()
+    mine, theirs = _chunks(out), _chunks(tmp_path / "one")
+    assert list(mine) == list(theirs) == [f"chunk_{k:05d}.npz" for k in range(3)]
+    for name, arrays in theirs.items():
+        assert list(mine[name]) == list(arrays) == ["shade", "t"]
+        for key, a in arrays.items():
+            np.testing.assert_array_equal(mine[name][key], a, err_msg=f"{name} {key}")
+    assert not list(tmp_path.glob("two_1/*"))  # process 1 wrote nothing on its own disk

@@ -10,7 +10,8 @@ compilation cache in :func:`cache_dir` (``$JAXGFX_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/jaxgfx/jax``, else ``~/.cache/jaxgfx/jax``), caching every program however
 small or quick to compile; ``jaxgfx --no-cache CMD ...`` skips it.
 
-Every core: XLA:CPU runs one computation on one core, so commands that shard a batch over
+Every core: one XLA:CPU device uses other cores only inside large fused loops (the rest of
+a program runs on one thread), so commands that shard a batch over
 devices (``jaxgfx sweep``, marked by a ``--devices`` option) first give JAX one host device per
 core by adding ``--xla_force_host_platform_device_count`` to ``XLA_FLAGS``
 (:func:`host_device_flags`).  ``import jaxgfx`` imports JAX but does not start its backends, so
