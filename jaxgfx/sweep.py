@@ -135,7 +135,21 @@ def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
     mesh = device_mesh(devices)
     shard = NamedSharding(mesh, PartitionSpec("batch"))
     return ShardedRenderer(
-        mesh, jax.jit(jax.vmap(render_fn), in_shardings=shard, out_shardings=shard)
+        mesh, jax.jit(_per_device(render_fn, mesh), in_shardings=shard, out_shardings=shard)
+    )
+
+
+def _per_device(render_fn: Callable, mesh: Mesh) -> Callable:
+    """``vmap(render_fn)`` run by each device on its own slice of the batch (``shard_map``).
+
+    The partitioner would otherwise see the whole batch: the rasterizer's ``custom_vmap``
+    rule loops over frames (``lax.map``), which it cannot split, so every device would
+    gather and render all frames.
+    """
+    spec = PartitionSpec("batch")
+    # check_vma=False: render functions need not type their constants as device-varying.
+    return jax.shard_map(
+        jax.vmap(render_fn), mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False
     )
 
 
@@ -468,7 +482,7 @@ def run_sweep(
     done = _decide(out_dir, manifest, sizes, mesh)
     writer = _writes(mesh)
     fn = jax.jit(
-        jax.vmap(render_fn),
+        _per_device(render_fn, mesh),
         in_shardings=NamedSharding(mesh, PartitionSpec("batch")),
         out_shardings=NamedSharding(mesh, PartitionSpec("batch")),
     )
