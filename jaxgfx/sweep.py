@@ -2,9 +2,9 @@
 
 A sweep renders N items (cameras, or any pytree of per-item parameters with a
 leading axis of N) with ``jax.vmap`` in fixed-size chunks.  Each chunk is
-sharded over a 1-D device mesh (axis ``"batch"``) with ``NamedSharding``, so
-one program uses every local device, and every device of every host once the
-user has started JAX's multi-host runtime:
+sharded over a 1-D device mesh (axis ``"batch"``; ``shard_map``, each device
+renders its own items), so one program uses every local device, and every
+device of every host once the user has started JAX's multi-host runtime:
 
     import jax
     jax.distributed.initialize()  # on every host, before any other JAX call
@@ -109,6 +109,26 @@ class ShardedRenderer:
         return _run(self.jitted, params, self.mesh)
 
 
+def _sharded_vmap(render_fn: Callable, mesh: Mesh):
+    """``vmap(render_fn)`` jitted with its batch split over ``mesh``, each device its own part.
+
+    ``shard_map``: every device runs ``vmap`` on its local items.  Plain ``jit``
+    with batch shardings lets the partitioner gather a batch that a renderer
+    walks item by item (``render_rle``'s vmap rule is a ``lax.map``), so one
+    device would do all the work.  ``check_vma=False``: loop carries that start
+    from constants (the same on every device) become per-device values.
+    """
+    shard = NamedSharding(mesh, PartitionSpec("batch"))
+    local = jax.shard_map(
+        jax.vmap(render_fn),
+        mesh=mesh,
+        in_specs=PartitionSpec("batch"),
+        out_specs=PartitionSpec("batch"),
+        check_vma=False,
+    )
+    return jax.jit(local, in_shardings=shard, out_shardings=shard)
+
+
 def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
     """Jits ``vmap(render_fn)`` once, sharded over a 1-D device mesh.
 
@@ -120,10 +140,7 @@ def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
         A :class:`ShardedRenderer`: ``params -> outputs`` for a batch of items.
     """
     mesh = device_mesh(devices)
-    shard = NamedSharding(mesh, PartitionSpec("batch"))
-    return ShardedRenderer(
-        mesh, jax.jit(jax.vmap(render_fn), in_shardings=shard, out_shardings=shard)
-    )
+    return ShardedRenderer(mesh, _sharded_vmap(render_fn, mesh))
 
 
 def _run(fn, params, mesh):
@@ -307,11 +324,7 @@ def run_sweep(
         _check_manifest(out_dir, json.loads(mpath.read_text()), manifest)
     elif jax.process_index() == 0:
         save_json(mpath, manifest)
-    fn = jax.jit(
-        jax.vmap(render_fn),
-        in_shardings=NamedSharding(mesh, PartitionSpec("batch")),
-        out_shardings=NamedSharding(mesh, PartitionSpec("batch")),
-    )
+    fn = _sharded_vmap(render_fn, mesh)
     computed = skipped = 0
     bar = None
     if progress:
