@@ -449,7 +449,7 @@ def main(argv=None) -> int:
           "mesh/ours", "embree_faces_ms", "ours/embree_faces", "embree_faces_agree",
           "embree_mesh_ms", "ours/embree_mesh", "embree_mesh_agree", "embree_mesh_dz"]  # fmt: skip
     h2 = ["way", "frames", "size", "ms_per_frame", "speedup_vs_loop",
-          "bit_identical"]  # fmt: skip
+          "bit_identical", "same_color", "max_depth_diff"]  # fmt: skip
     h3 = ["scene", "instances", "map", "voxels", "ours_bytes", "splat_bytes", "ours_ms",
           "time/1 instance", "ours_compile_s", "el_processed_M", "splat_ms",
           "splat/ours"]  # fmt: skip

@@ -279,6 +279,12 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         lod_distance=lod,
         buffer_size=buffer_size,
         elements_per_step=elements_per_step,
+        # Chunks as wide as without the far-scene planes (a chunk's loop runs
+        # until its slowest plane is done): 32 chunks of the thesis budget,
+        # so a frame that needs no extra planes costs what it did.
+        chunks=max(
+            32, -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 32))
+        ),
     )
     color, depth, entered = warp_ray_buffer(rle, cam, seg, texels, elements, neighbors=neighbors)
     refined = jnp.int32(0)
