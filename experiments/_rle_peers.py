@@ -164,7 +164,10 @@ def batched_cameras(rle, cams, rounds: int = 5) -> list[dict]:
     rows = []
     for k in runs:
         o = first[k]
-        depth, color = np.asarray(o.depth), np.asarray(o.color)
+        if k == "loop":
+            depth, color = loop_depth, loop_color
+        else:
+            depth, color = np.asarray(o.depth), np.asarray(o.color)
         same = np.array_equal(depth, loop_depth) and np.array_equal(color, loop_color)
         hit = np.isfinite(loop_depth)
         rows.append(dict(
