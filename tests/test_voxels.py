@@ -559,7 +559,10 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     assert main(argv) == 0
     lit = iio.imread(png)
     depth = np.load(dep)
-    assert depth.shape == (16, 24) and np.isfinite(depth).mean() > 0.1 and not np.isnan(depth).any()
+    # (The reference DDA hits 8.3 % of this small frame; render_rle 8.6 %.)
+    assert (
+        depth.shape == (16, 24) and np.isfinite(depth).mean() > 0.06 and not np.isnan(depth).any()
+    )
     hit = np.isfinite(depth)
     assert np.all(lit[~hit] == 0) and np.abs(lit[hit].astype(int) - unlit[hit]).mean() > 5
     # 2x1 AA: the same view on pixels half as wide, averaged back to --size.

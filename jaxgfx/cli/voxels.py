@@ -234,6 +234,8 @@ def run_render_voxels(args) -> int:
             refine_steps=0 if args.thesis else args.refine,
             oversample=1.0 if args.thesis else args.oversample,
             neighbors=0 if args.thesis else 1,
+            # The thesis's fixed per-pixel plane spacing (no distance-driven planes).
+            planes_per_voxel=0.0 if args.thesis else RC.RenderSettings().planes_per_voxel,
         )
         out = fn(
             RC.as_jax(rle),
@@ -340,8 +342,8 @@ def register(subparsers) -> None:
                    default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
     r.add_argument("--thesis", action="store_true",
-                   help="the thesis method alone: 1 plane per border pixel, nearest "
-                   "texel, no re-walk")  # fmt: skip
+                   help="the thesis method alone: 1 plane per border pixel at any "
+                   "distance, nearest texel, no re-walk")  # fmt: skip
     r.add_argument("--aa", type=parse_aa, default=(1, 1),
                    help="anti-aliasing 1x1 (off), 2x1 (thesis: pixels half as wide) or 2x2; "
                    "the frame is rendered at the finer grid and averaged back to --size, "

@@ -20,6 +20,7 @@ from jaxgfx.camera import Camera, camera_basis, focal_lengths, screen_to_camera
 
 __all__ = [
     "Segments",
+    "scene_rect",
     "PlaneParams",
     "vanishing_point",
     "screen_segments",
@@ -124,13 +125,63 @@ def _sgn_w(w):
     return jnp.where(w < 0, -1.0, 1.0)
 
 
-def screen_segments(cam: Camera, vp_h: jax.Array, *, num_planes: int, oversample: float = 1.0):
+def scene_rect(cam: Camera, shape) -> tuple[jax.Array, jax.Array]:
+    """Screen rectangle holding the scene box ``[0, shape)`` and its farthest depth.
+
+    Returns:
+        ``(rect (4,) = (x0, x1, y0, y1) clipped to the screen, z_max ())``; the
+        whole screen and ``z_max = inf`` when a corner of the box is not in front of
+        the eye (the box's image is then unbounded).
+    """
+    corners = jnp.asarray(
+        [[x, y, z] for x in (0, shape[0]) for y in (0, shape[1]) for z in (0, shape[2])],
+        jnp.float32,
+    )
+    right, up, forward = camera_basis(cam)
+    rel = corners - cam.position
+    zc = rel @ forward
+    fx, fy = focal_lengths(cam)
+    front = jnp.all(zc > 1e-3)
+    zs = jnp.where(front, zc, 1.0)
+    xs = 0.5 * cam.width + fx * (rel @ right) / zs
+    ys = 0.5 * cam.height - fy * (rel @ up) / zs
+    W, H = float(cam.width), float(cam.height)
+    # Whole pixels (planes stay on pixel centres, see Segments.phase) and one
+    # of margin: a plane on the box's image edge still sees its border voxels.
+    rect = jnp.stack(
+        [
+            jnp.clip(jnp.floor(jnp.min(xs)) - 1.0, 0.0, W),
+            jnp.clip(jnp.ceil(jnp.max(xs)) + 1.0, 0.0, W),
+            jnp.clip(jnp.floor(jnp.min(ys)) - 1.0, 0.0, H),
+            jnp.clip(jnp.ceil(jnp.max(ys)) + 1.0, 0.0, H),
+        ]
+    )
+    full = jnp.asarray([0.0, W, 0.0, H], jnp.float32)
+    return jnp.where(front, rect, full), jnp.where(front, jnp.max(zc), jnp.inf)
+
+
+def screen_segments(
+    cam: Camera,
+    vp_h: jax.Array,
+    *,
+    num_planes: int,
+    oversample: float = 1.0,
+    scene_shape=None,
+    planes_per_voxel: float = 0.0,
+):
     """Splits the screen into four segments and counts their planes (Eq. 4.4).
 
     ``np_i`` is the number of planes that gives a spacing of ``1 / oversample``
     pixels on the segment's farthest screen row (= ``2 dist(vp, border_i)`` when
     vp is on screen).  If the total exceeds the static ``num_planes`` budget all
     counts are scaled down.
+
+    With ``scene_shape`` (not in the thesis) the planes cover only the screen
+    rectangle of the scene box (:func:`scene_rect`), and with
+    ``planes_per_voxel = k > 0`` they are spaced at most ``1 / k`` voxels apart
+    at the box's farthest depth, so that a column narrower than a pixel is still
+    crossed by a plane: the density follows the distance, up to the budget
+    (above ``oversample`` per pixel, which the budget always holds).
 
     Returns:
         :class:`Segments`.
@@ -140,19 +191,28 @@ def screen_segments(cam: Camera, vp_h: jax.Array, *, num_planes: int, oversample
     u_lo: list[jax.Array] = []
     u_hi: list[jax.Array] = []
     need_s: list[jax.Array] = []
+    more_s: list[jax.Array] = []
+    if scene_shape is None:
+        rect = jnp.asarray([0.0, cam.width, 0.0, cam.height], jnp.float32)
+        z_max = jnp.float32(jnp.inf)
+    else:
+        rect, z_max = scene_rect(cam, scene_shape)
+    fx, fy = focal_lengths(cam)
     for s in range(4):
         size_a, size_b, a_ref, vertical, neg = _seg_axes(cam, s)
         va, vb = _ab(vp_h, vertical)
         vp_a = jnp.clip(_safe_div(va, w), -1e7, 1e7)
         vp_b = jnp.clip(_safe_div(vb, w), -1e7, 1e7)
-        a0 = 0.0 if neg else jnp.clip(vp_a, 0.0, size_a)
-        a1 = jnp.clip(vp_a, 0.0, size_a) if neg else size_a
+        amin, amax = (rect[2], rect[3]) if vertical else (rect[0], rect[1])
+        bmin, bmax = (rect[0], rect[1]) if vertical else (rect[2], rect[3])
+        a0 = amin if neg else jnp.clip(vp_a, amin, amax)
+        a1 = jnp.clip(vp_a, amin, amax) if neg else amax
         # Wedge of +-45 degrees around the segment's direction from vp.
         half = jnp.abs(a_ref - vp_a)
         side = 1.0 if neg else -1.0
         us_s = []
         for a in (a0, a1):
-            for b in (0.0, size_b):
+            for b in (bmin, bmax):
                 da = va - a * w
                 db = vb - b * w
                 da = jnp.where(jnp.abs(da) < 1e-9, 1e-9 * sw * side, da)
@@ -160,17 +220,32 @@ def screen_segments(cam: Camera, vp_h: jax.Array, *, num_planes: int, oversample
                 us_s.append(jnp.clip(u, vp_b - half, vp_b + half))
         us = jnp.stack(us_s)
         lo_u, hi_u = jnp.min(us), jnp.max(us)
-        a_far = 0.0 if neg else size_a
+        a_far = amin if neg else amax
         ratio = jnp.abs(a_far * w - va) / jnp.maximum(jnp.abs(a_ref * w - va), 1e-9)
+        live = (a1 > a0) & (hi_u > lo_u)
         n = jnp.ceil((hi_u - lo_u) * ratio * oversample)
-        n = jnp.where((a1 > a0) & (hi_u > lo_u), jnp.maximum(n, 1.0), 0.0)
+        n = jnp.where(live, jnp.maximum(n, 1.0), 0.0)
+        # Planes per pixel for a spacing of 1 / k voxels at depth z_max (one
+        # voxel there is f / z_max pixels across the plane direction).
+        f_b = fx if vertical else fy
+        # (None while the box is not wholly in front: the thesis spacing.)
+        dense = jnp.where(jnp.isfinite(z_max), planes_per_voxel * z_max / f_b, 0.0)
+        more = jnp.ceil((hi_u - lo_u) * ratio * jnp.maximum(dense, oversample))
+        more = jnp.where(live, jnp.maximum(more, n), 0.0)
         u_lo.append(lo_u)
         u_hi.append(hi_u)
         need_s.append(n)
+        more_s.append(more)
     need = jnp.stack(need_s)
+    more = jnp.stack(more_s)
     total = jnp.sum(need)
     scale = jnp.minimum(1.0, num_planes / jnp.maximum(total, 1.0))
     count = jnp.where(need > 0, jnp.maximum(jnp.floor(need * scale), 1.0), 0.0)
+    # The distance-driven planes take what the budget has left.
+    spare = jnp.maximum(num_planes - jnp.sum(count), 0.0)
+    extra = more - need
+    fill = jnp.minimum(1.0, spare / jnp.maximum(jnp.sum(extra), 1.0))
+    count = jnp.where(scale >= 1.0, count + jnp.floor(extra * fill), count)
     count = jnp.minimum(count, num_planes).astype(jnp.int32)
     start = jnp.cumsum(count) - count
     phase = jnp.float32((0.5 * oversample) % 1.0)

@@ -14,6 +14,7 @@ are voxel units, y up.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -55,9 +56,26 @@ class RenderOutput(NamedTuple):
     stats: dict
 
 
-def default_num_planes(width: int, height: int, oversample: float = 1.0) -> int:
-    """Static plane budget: ``2 (W + H)`` (sum of Eq. 4.4 with vp on screen) times oversample."""
-    return int(math.ceil(2 * (width + height) * oversample)) + 64
+def default_num_planes(
+    width: int,
+    height: int,
+    oversample: float = 1.0,
+    *,
+    scene_shape=None,
+    planes_per_voxel: float = 0.0,
+) -> int:
+    """Static plane budget: ``2 (W + H)`` (sum of Eq. 4.4 with vp on screen) times oversample.
+
+    With ``scene_shape`` ``(X, Y, Z)`` and ``planes_per_voxel = k``, plus ``k (X + Z)``:
+    a far scene needs about ``k`` planes per voxel across its width (see
+    :func:`~jaxgfx.raycast.screen_segments`).
+    """
+    extra = (
+        0
+        if scene_shape is None
+        else int(math.ceil(planes_per_voxel * (scene_shape[0] + scene_shape[2])))
+    )
+    return int(math.ceil(2 * (width + height) * oversample)) + extra + 64
 
 
 def default_max_steps(rle) -> int:
@@ -95,6 +113,13 @@ class RenderSettings:
             ``stats["refine_overflow"]``.
         elements_per_step: elements of a column handled per loop step (speed only;
             default 4).
+        planes_per_voxel: if > 0 (default 3), the planes cover only the screen
+            rectangle of the scene box and are spaced at most ``1 / planes_per_voxel``
+            voxels apart at its farthest depth (while the box is wholly in front of
+            the eye), so columns narrower than a pixel are still found and the
+            agreement does not fall with distance; 0 = the thesis's spacing
+            (:func:`~jaxgfx.raycast.screen_segments`).  It also raises the default
+            ``num_planes`` by ``planes_per_voxel (X + Z)``.
 
     Raises:
         TypeError: a count that is not an int, an ``oversample`` that is not a number.
@@ -109,6 +134,7 @@ class RenderSettings:
     neighbors: int = static_field(1)
     refine_budget: int | None = static_field(None)
     elements_per_step: int = static_field(4)
+    planes_per_voxel: float = static_field(3.0)
 
     def __post_init__(self):
         # Normalised to Python ints / floats: equal settings hash alike (one compile).
@@ -121,7 +147,10 @@ class RenderSettings:
             neighbors=check_int("neighbors", self.neighbors, low=0),
             refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
             elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
+            planes_per_voxel=check_float("planes_per_voxel", self.planes_per_voxel),
         )
+        if fields["planes_per_voxel"] < 0:
+            raise ValueError(f"planes_per_voxel must be >= 0, got {fields['planes_per_voxel']}")
         if fields["oversample"] <= 0:
             raise ValueError(f"oversample must be > 0, got {fields['oversample']}")
         for name, value in fields.items():
@@ -138,17 +167,24 @@ def render_rle(
     """Renders an :class:`~jaxgfx.raycast.RLEVolume` with the per-plane ray caster (4.5).
 
     ``jax.jit(render_rle)`` needs no static arguments (the :class:`RenderSettings`
-    are static pytree metadata); vmap over a batched camera (same resolution)
-    renders many views.
+    are static pytree metadata).  ``jax.vmap`` over a batched camera (same
+    resolution, :func:`~jaxgfx.camera.stack_cameras`) renders the views one after
+    another inside one program (a ``custom_vmap`` rule): bit-identical to a loop,
+    one compile, no slower per frame; shard the batch over devices to use more
+    cores (:func:`jaxgfx.sweep.sharded_renderer`).
 
     The defaults are the settings the acceptance test (agreement with the
     per-pixel 3-D DDA of :func:`reference_render`: depth within one voxel on
     >= 99 % and the same colour on >= 98 % of pixels) is measured with.  The
-    thesis method alone is ``RenderSettings(oversample=1, neighbors=0, refine_steps=0)``: it
+    thesis method alone is ``RenderSettings(oversample=1, neighbors=0, refine_steps=0,
+    planes_per_voxel=0)``: it
     samples each pixel from its nearest plane, and where columns project to
     less than a plane spacing (far or grazing surfaces) it shows a
     neighbouring voxel.  The defaults add (a) two planes per border pixel,
-    placed so that pixel-centre planes are kept (:class:`Segments`), (b) an
+    placed so that pixel-centre planes are kept (:class:`Segments`), and more
+    for a far scene, spaced by a third of a voxel at its far end
+    (``planes_per_voxel``; without them a bunny 900 voxels away agrees on 85 %
+    of pixels instead of 99.5 %), (b) an
     exact test of the pixel's own ray against the elements of the adjacent
     planes' texels (:func:`warp_ray_buffer`), and (c) a short exact re-walk
     (:func:`refine_hits`) only for pixels whose ray entered none of those
@@ -171,6 +207,40 @@ def render_rle(
         (``refined``: pixels that asked for a re-walk).
     """
     s = RenderSettings() if settings is None else settings
+    # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
+    # become constants here; device buffers pass through unchanged.
+    rle = jax.tree_util.tree_map(jnp.asarray, rle)
+    frame = jax.custom_batching.custom_vmap(functools.partial(_render_frame, s))
+    frame.def_vmap(functools.partial(_frames_one_by_one, functools.partial(_render_frame, s)))
+    return frame(rle, cam, jnp.asarray(lod_distance, jnp.float32))
+
+
+def _frames_one_by_one(fn, axis_size, in_batched, *args):
+    """vmap rule of :func:`render_rle`: the frames one after another (``lax.map``).
+
+    The frame's loops stop early and skip idle plane chunks and re-walk
+    batches with ``cond``; batched by plain vmap every frame would run the
+    longest loop and every branch.  One frame at a time runs each frame's own
+    program, so a batch is bit-identical to a loop over the cameras, compiles
+    once and costs no more per frame.  Unbatched arguments (the scene) are
+    closed over, not copied per frame.
+    """
+    del axis_size
+    flat, tree = jax.tree_util.tree_flatten(args)
+    flags = jax.tree_util.tree_leaves(in_batched)
+
+    def one(batched):
+        it = iter(batched)
+        return fn(
+            *jax.tree_util.tree_unflatten(tree, [next(it) if b else x for x, b in zip(flat, flags)])
+        )
+
+    out = jax.lax.map(one, [x for x, b in zip(flat, flags) if b])
+    return out, jax.tree_util.tree_map(lambda _: True, out)
+
+
+def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
+    """One frame of :func:`render_rle` (its arguments already checked and on the device)."""
     num_planes, max_steps, oversample = s.num_planes, s.max_steps, s.oversample
     buffer_size, refine_steps, neighbors = s.buffer_size, s.refine_steps, s.neighbors
     refine_budget, elements_per_step = s.refine_budget, s.elements_per_step
@@ -178,18 +248,27 @@ def render_rle(
         raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
     if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
         raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
-    # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
-    # become constants here; device buffers pass through unchanged.
-    rle = jax.tree_util.tree_map(jnp.asarray, rle)
     if num_planes is None:
-        num_planes = default_num_planes(cam.width, cam.height, oversample)
+        num_planes = default_num_planes(
+            cam.width,
+            cam.height,
+            oversample,
+            scene_shape=rle.shape,
+            planes_per_voxel=s.planes_per_voxel,
+        )
     if max_steps is None:
         max_steps = default_max_steps(rle)
     rows = max(cam.width, cam.height)
     vp_h = vanishing_point(cam)
-    seg = screen_segments(cam, vp_h, num_planes=num_planes, oversample=oversample)
+    seg = screen_segments(
+        cam,
+        vp_h,
+        num_planes=num_planes,
+        oversample=oversample,
+        scene_shape=rle.shape,
+        planes_per_voxel=s.planes_per_voxel,
+    )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
-    lod = jnp.asarray(lod_distance, jnp.float32)
     texels, elements, stats = traverse_planes(
         rle,
         cam,
@@ -200,6 +279,12 @@ def render_rle(
         lod_distance=lod,
         buffer_size=buffer_size,
         elements_per_step=elements_per_step,
+        # Chunks as wide as without the far-scene planes (a chunk's loop runs
+        # until its slowest plane is done): 32 chunks of the thesis budget,
+        # so a frame that needs no extra planes costs what it did.
+        chunks=max(
+            32, -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 32))
+        ),
     )
     color, depth, entered = warp_ray_buffer(rle, cam, seg, texels, elements, neighbors=neighbors)
     refined = jnp.int32(0)

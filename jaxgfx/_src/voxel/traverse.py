@@ -1,9 +1,17 @@
 """Rasterizing the ray buffer: per-plane traversal, projection, culling, drawing (thesis 4.5.4).
 
 Per plane, an exact 2-D DDA (Amanatides & Woo) walks the pointer map from the eye
-outwards (4.5.4.1; a ``lax.while_loop`` with per-plane done masks that ends when
-every plane has left the map, reached the far limit or closed its floating horizon,
-and jumping from an empty cell over the empty square around it).  Every RLE element
+outwards (4.5.4.1; jumping from an empty cell over the empty square around it).
+The loop has the design card's form: ``lax.scan`` over fixed blocks of 4 steps with
+per-plane done masks inside (a done plane's step changes nothing), and a
+``lax.while_loop`` over the blocks that exits once every plane has left the map,
+reached the far limit or closed its floating horizon.  The early exit stays because
+the step count varies by orders of magnitude between planes and frames (a fixed
+``scan`` to the worst case would walk every plane across the whole map).  Measured
+(bunny R = 256 and tree 64^3, 512x384 2x1 AA, 3 cameras, best of 5 interleaved
+rounds, identical frames): blocks of 4 take 0.96-0.98x the time of one step per
+``while`` iteration, blocks of 16 1.02-1.07x (more wasted steps after the last
+plane is done).  Every RLE element
 of every visited column is projected *once* into the plane's ray-buffer column
 (4.5.4.2, Eq. 4.5) and culled by a floating horizon and a 1-bit coverage map
 (4.5.4.3).  Front-to-back visibility per ray-buffer pixel is resolved by a coverage
@@ -404,13 +412,15 @@ def traverse_planes(
     buffer_size: int | None = None,
     elements_per_step: int = 4,
     chunks: int = 32,
+    block_steps: int = 4,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
     An exact 2-D DDA walks the pointer map from the eye outwards for at most
-    ``max_steps`` cells (a ``lax.while_loop`` with a done mask, so a batch of
-    planes stops as soon as all of them have left the map, reached the far
-    limit or closed their floating horizon).  Each step works on up to
+    ``max_steps`` cells (``lax.scan`` blocks of ``block_steps`` steps with a
+    done mask, in a ``lax.while_loop`` so that a batch of planes stops as soon
+    as all of them have left the map, reached the far limit or closed their
+    floating horizon).  Each step works on up to
     ``elements_per_step`` elements of the current column, in front-to-back
     order, and moves to the next cell once the column is exhausted: the loop
     body is that narrow, while a column with many elements takes several
@@ -439,6 +449,9 @@ def traverse_planes(
             in the last stat.
         elements_per_step: static number of a column's elements handled per
             loop step (default 4; any value gives the same image).
+        block_steps: static; each ``while_loop`` iteration is a ``lax.scan`` of
+            this many steps (default 4; 1: one step per iteration, no scan).  Any
+            value gives the same frame (see the module docstring).
         chunks: static number of consecutive plane groups, each with its own
             loop (so it stops when its own planes are done); a group holding
             only planes past ``sum(seg.count)`` is skipped.
@@ -471,9 +484,17 @@ def traverse_planes(
         # The loop runs outside the vmap: its condition is "any plane still
         # going", so the per-plane done masks do the work and the big
         # ray-buffer carry is not copied through a batched select every step.
-        carry = jax.lax.while_loop(
-            lambda c: jnp.any(~c.done) & (c.it[0] < cap), lambda c: step(consts, c), carry0
-        )
+        if block_steps <= 1:
+            carry = jax.lax.while_loop(
+                lambda c: jnp.any(~c.done) & (c.it[0] < cap), lambda c: step(consts, c), carry0
+            )
+        else:
+            # The design card's form: lax.scan over fixed blocks of steps (a
+            # done plane's step changes nothing), the early exit between blocks.
+            def block(c):
+                return jax.lax.scan(lambda c, _: (step(consts, c), None), c, None, block_steps)[0]
+
+            carry = jax.lax.while_loop(lambda c: jnp.any(~c.done) & (c.it[0] < cap), block, carry0)
         ibuf, nbuf, stats = carry.ibuf, carry.nbuf, carry.stats
         stats = jnp.concatenate([stats, jnp.maximum(nbuf - K, 0)[:, None]], axis=1)
 

@@ -60,7 +60,10 @@ def _ray_buffer_texel(cam: Camera, seg: Segments):
     x = (u - lo) / jnp.maximum(hi - lo, 1e-12) * cnt.astype(jnp.float32) - seg.phase
     i = jnp.clip(jnp.floor(x + 0.5).astype(jnp.int32), 0, jnp.maximum(cnt - 1, 0))
     row = jnp.floor(pa).astype(jnp.int32)
-    return st, i, cnt, row, cnt > 0
+    # Planes may cover only the scene's screen rectangle (screen_segments):
+    # pixels more than a plane beyond the outermost ones see nothing.
+    inside = (x > -1.5) & (x < cnt.astype(jnp.float32) + 0.5)
+    return st, i, cnt, row, (cnt > 0) & inside
 
 
 def ray_buffer_coords(cam: Camera, seg: Segments):
