@@ -41,7 +41,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -492,7 +491,6 @@ def run_sweep(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n_chunks, desc="sweep", unit="chunk")
-    abort_after = int(os.environ.get("JAXGFX_SWEEP_KILL_AFTER", "-1"))
     for k in range(n_chunks):
         start, stop = k * chunk_size, min(n, (k + 1) * chunk_size)
         path = chunk_path(out_dir, k)
@@ -511,9 +509,6 @@ def run_sweep(
             computed += 1
             if on_chunk is not None and writer:
                 on_chunk(k, start, out)
-            if abort_after >= 0 and computed >= abort_after:
-                # Test hook: die like a killed process, with no clean-up at all.
-                os.kill(os.getpid(), 9)
         if bar is not None:
             bar.update(1)
     if bar is not None:

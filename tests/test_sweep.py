@@ -280,7 +280,7 @@ MULTIPROCESS = textwrap.dedent(
     """
     import json, sys
     import jax
-    pid, port, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+    pid, port, out, kill_after = int(sys.argv[1]), sys.argv[2], sys.argv[3], int(sys.argv[4])
     if pid >= 0:
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
         jax.distributed.initialize(
@@ -289,7 +289,21 @@ MULTIPROCESS = textwrap.dedent(
         )
     import jax.numpy as jnp
     from jaxgfx.camera import orbit_cameras, pixel_rays
+    import jaxgfx.sweep
     from jaxgfx.sweep import run_sweep
+
+    if kill_after > 0:  # die like a killed host after computing `kill_after` chunks: no clean-up
+        import os
+        run, calls = jaxgfx.sweep._run, []
+
+        def dying_run(*args):
+            out = run(*args)
+            calls.append(1)
+            if len(calls) >= kill_after:
+                os.kill(os.getpid(), 9)
+            return out
+
+        jaxgfx.sweep._run = dying_run
 
     assert jax.device_count() == 2, jax.devices()
     cams = orbit_cameras([0, 0, 0], 4.0, 5, width=24, height=16)
@@ -321,11 +335,11 @@ def _two_processes(out, kill_after=None):
     port = str(_free_port())
     procs = []
     for pid in (0, 1):
-        extra = {"JAXGFX_SWEEP_KILL_AFTER": str(kill_after)} if kill_after and pid == 1 else {}
+        kill = str(kill_after) if kill_after and pid == 1 else "0"
         procs.append(
             subprocess.Popen(
-                [sys.executable, "-c", MULTIPROCESS, str(pid), port, f"{out}{'_1' * pid}"],
-                env=_env(1, **extra),
+                [sys.executable, "-c", MULTIPROCESS, str(pid), port, f"{out}{'_1' * pid}", kill],
+                env=_env(1),
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,
@@ -353,7 +367,7 @@ def test_two_processes_equal_one_and_resume_after_a_kill(tmp_path):
     one-process sweep over 2 host devices; after one process is killed mid-sweep (SIGKILL) the
     other is stopped by the coordination service, and rerunning both completes the sweep."""
     ref = subprocess.run(
-        [sys.executable, "-c", MULTIPROCESS, "-1", "0", str(tmp_path / "one")],
+        [sys.executable, "-c", MULTIPROCESS, "-1", "0", str(tmp_path / "one"), "0"],
         env=_env(2),
         capture_output=True,
         text=True,
