@@ -258,33 +258,27 @@ def fit_style(
         def loss_fn(p):
             return _loss_terms(p, predict(params_to_style(p, hollow)), targets, smoothness)
 
-    params, losses, datas, seconds = _run_optimizer(
-        loss_fn, style_to_params(init_style), optimizer, steps,
-        desc="fit_style", progress=progress, callback=callback,
+    return _run_optimizer(
+        loss_fn, init_style, optimizer, steps, desc="fit_style", progress=progress,
+        callback=callback,
     )  # fmt: skip
-    return FitResult(
-        style=params_to_style(params, hollow),
-        loss_history=losses,
-        data_history=datas,
-        seconds=seconds,
-    )
 
 
 def _run_optimizer(
     loss_fn: Callable[[dict], tuple[jax.Array, jax.Array]],
-    params: dict,
+    init_style: Style,
     optimizer: optax.GradientTransformation,
     steps: int,
     *,
     desc: str,
     progress: bool,
     callback: Callable[[int, float], None] | None,
-) -> tuple[dict, np.ndarray, np.ndarray, float]:
+) -> FitResult:
     """The optimization loop of the fitting drivers: one jitted step run ``steps`` times.
 
     Args:
-        loss_fn: ``params -> (total loss, data term)``, pure.
-        params: starting parameters.
+        loss_fn: ``params -> (total loss, data term)`` of the log-parameters, pure.
+        init_style: the starting style (its hollow offset is kept).
         optimizer: the optax transformation.
         steps: steps to run.
         desc: tqdm label.
@@ -292,9 +286,10 @@ def _run_optimizer(
         callback: called as ``callback(step, loss)`` after each step.
 
     Returns:
-        Final parameters, total and data loss before each step and after the last, (steps + 1,)
-        each, and the wall seconds of the loop (compilation included).
+        :class:`FitResult`: the losses before each step and after the last, and the wall seconds
+        of the loop (compilation included).
     """
+    params = style_to_params(init_style)
 
     @jax.jit
     def step(p, s):
@@ -318,9 +313,9 @@ def _run_optimizer(
     # is dropped); with no steps, the loss alone
     final, final_data = jax.jit(loss_fn)(params) if steps == 0 else step(params, opt_state)[2:]
     seconds = time.perf_counter() - t0
-    return (
-        params,
-        np.asarray(losses + [float(final)]),
-        np.asarray(datas + [float(final_data)]),
-        seconds,
+    return FitResult(
+        style=params_to_style(params, init_style.hollow),
+        loss_history=np.asarray(losses + [float(final)]),
+        data_history=np.asarray(datas + [float(final_data)]),
+        seconds=seconds,
     )

@@ -44,7 +44,6 @@ from jaxgfx._src.skin.fit import (
     _run_optimizer,
     params_to_style,
     smoothness_penalty,
-    style_to_params,
 )
 from jaxgfx._src.skin.styles import Style
 from jaxgfx.camera import Camera, focal_lengths, validate_camera
@@ -358,13 +357,7 @@ def fit_style_images(
             smoothness=smoothness,
         )  # fmt: skip
 
-    params, losses, datas, seconds = _run_optimizer(
-        loss_fn, style_to_params(init_style), optimizer, steps,
-        desc="fit_style_images", progress=progress, callback=callback,
+    return _run_optimizer(
+        loss_fn, init_style, optimizer, steps, desc="fit_style_images", progress=progress,
+        callback=callback,
     )  # fmt: skip
-    return FitResult(
-        style=params_to_style(params, hollow),
-        loss_history=losses,
-        data_history=datas,
-        seconds=seconds,
-    )

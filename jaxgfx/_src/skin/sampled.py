@@ -17,12 +17,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax import lax
 
 from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
-from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _normalize
-from jaxgfx._src.skin.kernels import blend_skin, style_offsets
+from jaxgfx._src.skin.geometry import _compose, _normalize
+from jaxgfx._src.skin.kernels import blend_skin, normalize_rows, style_offsets
 from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
 from jaxgfx._src.skin.spline import frame_inverse, spline_frames
 from jaxgfx._src.skin.styles import Style, _check_style, _pose_weights, _style_flags, apply_style
@@ -158,7 +157,7 @@ def skin_vertex_sampled(
     m = jnp.dot(weight, _lerp(skinning, coord, 12))  # blend first, then one affine map, as SSD
     pos = m[0:3] * vertex[0] + m[3:6] * vertex[1] + m[6:9] * vertex[2] + m[9:12]
     nrm = m[0:3] * normal[0] + m[3:6] * normal[1] + m[6:9] * normal[2]
-    return pos, nrm * lax.rsqrt(jnp.maximum(jnp.sum(nrm * nrm), _EPS_SQ))
+    return pos, normalize_rows(nrm)
 
 
 def style_offset_sampled(
@@ -229,17 +228,22 @@ def skin_sampled(
     Returns:
         Positions (V, 3) and unit normals (V, 3).
     """
-    radial, rect = _style_flags(styles)
-    if (radial or rect) and style is None:
-        raise ValueError("style is required when styles != 'none'")
-    if not isinstance(binding, SampledBinding):
-        raise TypeError("binding must be a SampledBinding (use prepare_sampled)")
+    _check_pass2(binding, style, styles)
     validate_pose(rig, pose)
     pose = jax.tree_util.tree_map(jnp.asarray, pose)
     skinning, style_table = sample_spline_frames(rig, pose, samples)
     return skin_sampled_tables(
         skinning, style_table, binding, style, samples=samples, styles=styles
     )
+
+
+def _check_pass2(binding, style, styles: str) -> tuple[bool, bool]:
+    radial, rect = _style_flags(styles)
+    if (radial or rect) and style is None:
+        raise ValueError("style is required when styles != 'none'")
+    if not isinstance(binding, SampledBinding):
+        raise TypeError("binding must be a SampledBinding (use prepare_sampled)")
+    return radial, rect
 
 
 def skin_sampled_tables(
@@ -254,9 +258,9 @@ def skin_sampled_tables(
     """Pass 2 of :func:`skin_sampled` alone, from pass 1's tables.
 
     For a batch of poses split over devices, pass 1 (about 45 small ops per pose) can then run
-    vmapped over each device's whole shard once, and only this per-vertex pass in chunks
-    (``jaxgfx.sweep.sharded_vmap(..., chunk=8)``): running both per chunk of 8 poses cost the
-    sampled rows of ``experiments/skinning_bench.py`` a third of their time on 2 devices.
+    vmapped over each device's whole shard once and only this per-vertex pass in chunks
+    (``jaxgfx.sweep.sharded_vmap(..., chunk=8)``), as ``experiments/skinning_bench.py`` does;
+    a fitting loop over fixed poses computes pass 1 once for all steps.
 
     Args:
         skinning: (K * S, 24) and ``style_table`` (K * S, 20): :func:`sample_spline_frames`.
@@ -269,11 +273,7 @@ def skin_sampled_tables(
     Returns:
         Positions (V, 3) and unit normals (V, 3).
     """
-    radial, rect = _style_flags(styles)
-    if (radial or rect) and style is None:
-        raise ValueError("style is required when styles != 'none'")
-    if not isinstance(binding, SampledBinding):
-        raise TypeError("binding must be a SampledBinding (use prepare_sampled)")
+    radial, rect = _check_pass2(binding, style, styles)
     samples = check_int("samples", samples, low=2)
     if skinning.ndim != 2 or skinning.shape[1] != 24 or skinning.shape[0] % samples:
         raise ValueError(f"skinning must have shape (K * {samples}, 24), got {skinning.shape}")
