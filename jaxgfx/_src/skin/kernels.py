@@ -78,6 +78,27 @@ to 1e-6).  The kept kernel runs at 0.62-0.71x LBS (34.4 against 24.5 ms CPU time
 * On 2 devices (``sharded_vmap``, chunks of 4 / 8 / 20 / 40 poses): 0.50 / 0.45 / 0.51 / 0.45x
   the chunk-8 LBS; pass 1 runs once per chunk there (about 45 small ops each): 4.4 against
   1.4 ms.
+
+Session 10, like for like (every kernel in chunks of 8 poses, ``sharded_vmap(chunk=8)``, as the
+LBS row the target is measured against; CPU time of one process, best of 7 interleaved rounds,
+80 poses x 12,546 vertices, load 3.7-8.7; every variant equal to the kept kernel to 1e-6):
+
+* Chunks help LBS (24.4 -> 17.9 ms) and the styles (97.7 -> 65.8 ms) but not the sampled kernel
+  (35.4 -> 38.3 ms): chunked against chunked, sampled runs at 0.42-0.50x LBS and spline + both
+  styles at 0.27-0.30x, below the vmap-against-vmap figures above.  ``skinning_bench`` (wall,
+  best of 9, load 7-8): sampled 0.48x on 1 device and 0.47x on 2, styles 0.30x and 0.26x.
+* Pass 1 out of the chunk loop (vmapped once over a device's shard, pass 2 alone in the loop,
+  :func:`~jaxgfx._src.skin.sampled.skin_sampled_tables`): 38.9 -> 36.4 ms sampled, 62.1 -> 61.0 ms
+  with both styles on 2 devices; kept in the bench.  Pass 1 was not where the 2-device rows lost.
+* Where spline + both styles spends its 64.8 ms (1 device, chunked; LBS 17.7): the sampled blend
+  42.4, the style offsets alone 18.8, the final add and renormalization about 7 (57.8 without).
+  Normalizing once (raw blend + offset in one pass, instead of blend normalized, then the sum):
+  63.6-63.8 against 63.6 ms; the pose-independent style terms (cross-section angle, texture and
+  curve samples) written out behind a barrier: 61.5 -> 65.6 ms (no gain; XLA already keeps them
+  out of the per-pose loop).  Both dropped.
+* Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
+  and the unstyled blend are computed once per fit and a step differentiates only the style
+  offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).
 """
 
 from __future__ import annotations
