@@ -513,6 +513,18 @@ def test_style_and_pose_bad_input():
         skin.skin_exact(
             rig, bad.__class__(rig.bind.points, jnp.array([1.0]), jnp.zeros(1)), binding
         )
+    # pass 2 alone: the tables' shapes are checked before anything is traced
+    prepared = skin.prepare_sampled(binding, 4)
+    with pytest.raises(ValueError, match="skinning"):
+        skin.skin_sampled_tables(jnp.zeros((5, 24)), jnp.zeros((5, 20)), prepared, samples=4)
+    with pytest.raises(ValueError, match="style_table"):
+        skin.skin_sampled_tables(jnp.zeros((4, 24)), jnp.zeros((4, 9)), prepared, samples=4)
+    with pytest.raises(ValueError, match="style is required"):
+        skin.skin_sampled_tables(
+            jnp.zeros((4, 24)), jnp.zeros((4, 20)), prepared, samples=4, styles="both"
+        )
+    with pytest.raises(TypeError, match="SampledBinding"):
+        skin.skin_sampled_tables(jnp.zeros((4, 24)), jnp.zeros((4, 20)), binding, samples=4)
     with pytest.raises(ValueError, match="joints"):
         skin.linear_blend_skinning(
             jnp.zeros((2, 3, 4)),
