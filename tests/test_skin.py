@@ -53,7 +53,7 @@ lbs_jit = jax.jit(skin.linear_blend_skinning)
 dqs_jit = jax.jit(skin.dual_quaternion_skinning)
 bones_jit = jax.jit(skin.bone_transforms)
 skin_exact_jit = jax.jit(skin.skin_exact, static_argnames=("styles", "dominant_only"))
-_skin_sampled_jit = jax.jit(skin.skin_sampled, static_argnames=("samples", "styles"))
+_skin_sampled_jit = jax.jit(skin.skin_sampled, static_argnames=("samples", "styles", "subrows"))
 
 
 def skin_sampled_jit(rig, pose, binding, style=None, *, samples=32, styles="none"):
@@ -702,7 +702,7 @@ def test_sampled_kernel_equals_per_vertex_reference():
             lambda u, w, lv, ln: skin.style_offset_sampled(st, style, samples, u, w, lv, ln)
         )(b.dominant_coord, b.dominant_weight, b.dominant_local, b.dominant_local_normal)
     )
-    outs = []
+    outs, rounding_moved = [], []
     for pose in poses:
         table, _ = table_fn(rig, pose, samples=samples)
         pos, nrm = _skin_sampled_jit(rig, pose, prepared, None, samples=samples, styles="none")
@@ -712,6 +712,14 @@ def test_sampled_kernel_equals_per_vertex_reference():
         np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         outs.append((pos, nrm))
+        # sub-rows: the LBS kernel on the expanded table = the reference at u rounded to 1/4
+        qpos, qnrm = _skin_sampled_jit(rig, pose, prepared, None, samples=samples, subrows=4)
+        qref = ref(
+            table, np.round(coord * 4) / 4, prepared.weight, prepared.rest, prepared.rest_normal
+        )
+        np.testing.assert_allclose(qpos, qref[0], rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        np.testing.assert_allclose(qnrm, qref[1], rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        rounding_moved.append(float(np.abs(qpos - rpos).max()))
         # the style kernel equals the vmapped style_offset_sampled (both envelopes, hollow)
         spos, snrm = _skin_sampled_jit(rig, pose, prepared, style, samples=samples, styles="both")
         dpos, dnrm = style_ref(table_fn(rig, pose, samples=samples)[1], style, prepared)
@@ -720,6 +728,7 @@ def test_sampled_kernel_equals_per_vertex_reference():
         ref_n /= np.linalg.norm(ref_n, axis=-1, keepdims=True)
         np.testing.assert_allclose(snrm, ref_n, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         assert float(np.abs(dpos).max()) > 1e-3  # the style moved the vertices
+    assert max(rounding_moved) > 1e-4  # rounding u is not a no-op (it is at the bind pose)
     # vmap over characters (poses) equals the loop
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *poses)
     bpos, bnrm = jax.jit(

@@ -86,7 +86,13 @@ LBS row the target is measured against; CPU time of one process, best of 7 inter
 * Chunks help LBS (24.4 -> 17.9 ms) and the styles (97.7 -> 65.8 ms) but not the sampled kernel
   (35.4 -> 38.3 ms): chunked against chunked, sampled runs at 0.42-0.50x LBS and spline + both
   styles at 0.27-0.30x, below the vmap-against-vmap figures above.  ``skinning_bench`` (wall,
-  best of 9, load 7-8): sampled 0.48x on 1 device and 0.47x on 2, styles 0.30x and 0.26x.
+  best of 9): sampled 0.41x on 1 device and 0.52x on 2, styles 0.30x and 0.32x at load 2.4
+  (vmap against vmap in the same run: 0.57x and 0.44x); 0.48x / 0.47x and 0.30x / 0.26x at
+  load 7-8.  Chunks take LBS from 22.3 to 12.4 ms there (its outputs and raw normals stay in
+  cache) but the sampled kernel only from 38.9 to 30.1 ms: it is bound by its scalar arithmetic.
+  ``--xla_cpu_enable_fast_math=true`` did not help (sampled / styles against LBS, chunked, CPU
+  time, 2 alternating processes each at load 1-6: 0.47-0.65x / 0.29-0.45x with the flag,
+  0.66-0.69x / 0.40-0.41x without).
 * Pass 1 out of the chunk loop (vmapped once over a device's shard, pass 2 alone in the loop,
   :func:`~jaxgfx._src.skin.sampled.skin_sampled_tables`): 38.9 -> 36.4 ms sampled, 62.1 -> 61.0 ms
   with both styles on 2 devices; kept in the bench.  Pass 1 was not where the 2-device rows lost.
