@@ -64,7 +64,14 @@ QUICK_METHODS = ("LBS (SSD)", "spline, sampled (S=32)", "spline + radial + rect"
 CHUNK = 8  # poses per step of each device's loop (sharded_vmap's chunk)
 SUBROWS = 16  # sub-rows per sample of the sampled table (skin_sampled(..., subrows=))
 SUBROWS_ROW = f"spline, sampled (S=32, {SUBROWS} sub-rows)"
-SHARDED_METHODS = ("LBS (SSD)", "spline, sampled (S=32)", SUBROWS_ROW, "spline + radial + rect")
+STYLES_SUBROWS_ROW = f"spline + radial + rect ({SUBROWS} sub-rows)"
+SHARDED_METHODS = (
+    "LBS (SSD)",
+    "spline, sampled (S=32)",
+    SUBROWS_ROW,
+    "spline + radial + rect",
+    STYLES_SUBROWS_ROW,
+)
 
 
 def lbs_influences(binding, top: int = 3):
@@ -122,6 +129,7 @@ def build_methods(rig, binding, style):
         "spline + radial": (sampled("radial"), (prepared, style)),
         "spline + rect": (sampled("rect"), (prepared, style)),
         "spline + radial + rect": (sampled("both"), (prepared, style)),
+        STYLES_SUBROWS_ROW: (sampled("both", SUBROWS), (prepared, style)),
     }
 
 
@@ -213,6 +221,7 @@ def _chunked(rig, method, name, poses, devices):
         "spline + radial": ("radial", None),
         "spline + rect": ("rect", None),
         "spline + radial + rect": ("both", None),
+        STYLES_SUBROWS_ROW: ("both", SUBROWS),
     }.get(name, (None, None))
     if styles is None:
         sm = sharded_vmap(fn, (0, None), devices, chunk=CHUNK)
@@ -404,6 +413,7 @@ def main(argv=None) -> int:
             ("sampled", "spline, sampled (S=32)", 0.9),
             (f"sampled, {SUBROWS} sub-rows", SUBROWS_ROW, 0.9),
             ("radial + rect", "spline + radial + rect", 0.4),
+            (f"radial + rect, {SUBROWS} sub-rows", STYLES_SUBROWS_ROW, 0.4),
         ):
             ratio = lbs_all / by[(LIMB, name + tag)]["best_ms"]
             targets[f"{key} >= {low}x LBS, {d} device(s), chunked ({ratio:.2f}x)"] = ratio >= low

@@ -16,7 +16,8 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
   :func:`skin_vertex_exact`, :func:`skin_exact` (frames per vertex).
 * 5.8 Fast computation (passes 1 and 2) -- ``sampled``: :func:`sample_spline_frames`,
   :func:`prepare_sampled`, :func:`skin_vertex_sampled`, :func:`skin_sampled` (pass 2 alone:
-  :func:`skin_sampled_tables`).
+  :func:`skin_sampled_tables`; ``subrows=Q`` expands the table to Q sub-rows per sample in pass 1
+  so that pass 2 runs LBS's kernel, with ``u`` rounded to ``1/Q`` of a sample step).
 * 5.9 Baselines on the same skeleton -- ``baselines``: :func:`bone_transforms`,
   :func:`linear_blend_skinning` (SSD) and :func:`dual_quaternion_skinning` (Kavan et al.).
 * The mesh kernels behind :func:`linear_blend_skinning` and :func:`skin_sampled` -- ``kernels``

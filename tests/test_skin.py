@@ -720,6 +720,12 @@ def test_sampled_kernel_equals_per_vertex_reference():
         np.testing.assert_allclose(qpos, qref[0], rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(qnrm, qref[1], rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         rounding_moved.append(float(np.abs(qpos - rpos).max()))
+        spos_q, _ = _skin_sampled_jit(
+            rig, pose, prepared, style, samples=samples, styles="both", subrows=4
+        )
+        rounded = prepared._replace(dominant_coord=np.round(coord[:, 0] * 4) / 4)
+        dpos_q, _ = style_ref(table_fn(rig, pose, samples=samples)[1], style, rounded)
+        np.testing.assert_allclose(spos_q, qref[0] + dpos_q, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         # the style kernel equals the vmapped style_offset_sampled (both envelopes, hollow)
         spos, snrm = _skin_sampled_jit(rig, pose, prepared, style, samples=samples, styles="both")
         dpos, dnrm = style_ref(table_fn(rig, pose, samples=samples)[1], style, prepared)

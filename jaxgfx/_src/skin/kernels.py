@@ -205,6 +205,7 @@ def style_offsets(
     *,
     radial: bool,
     rect: bool,
+    subrows: int | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """:func:`style_offset_sampled` of every vertex in structure-of-arrays layout.
 
@@ -222,10 +223,21 @@ def style_offsets(
         weight: (V,) its weight.
         local, local_normal: (V, 3) its ``v'`` and spline-space normal.
         radial, rect: which envelopes to apply.
+        subrows: None interpolates the rotation per vertex; Q rounds ``coord`` to ``1/Q`` of a
+            sample step and reads the rotation from a table expanded to Q sub-rows per sample
+            (one gather per value instead of two; as ``skin_sampled_tables(subrows=Q)``).
 
     Returns:
-        Position offsets (V, 3) and normal offsets (V, 3), as the reference's.
+        Position offsets (V, 3) and normal offsets (V, 3), as the reference's (at the rounded
+        ``coord`` with ``subrows``).
     """
+    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
+    sub = None
+    if subrows is not None:
+        sub = jnp.round(coord * subrows).astype(jnp.int32)
+        coord = sub.astype(coord.dtype) / subrows  # exact for Q a power of 2
+        f_sub = jnp.arange(subrows, dtype=style_table.dtype) / subrows
+        rot_sub = [(cols[c][:, None] + f_sub * cols[9 + c][:, None]).reshape(-1) for c in range(6)]
     r0 = jnp.floor(coord)
     t = coord - r0
     row = r0.astype(jnp.int32)
@@ -238,7 +250,6 @@ def style_offsets(
     )
     crv = jax.vmap(sample_curve, in_axes=(None, 0))(style.curves, x) if rect else None
     front = jnp.maximum(-cos_a, 0.0)
-    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
 
     def factors(row) -> list[jax.Array]:
         """The envelope factors of ``sx = s_rad s_l`` and ``sy = s_rad s_f``, each (V,)."""
@@ -258,9 +269,12 @@ def style_offsets(
             out.append(_blend2(crv[:, 0], crv[:, 2], front * bend, twist))  # s_f
         return out
 
-    def rotate(row, t, d0, d1):
+    def rotate(row, t, sub, d0, d1):
         # w R(x) (d0, d1, 0): the third column meets a zero (styles leave v'_z alone)
-        rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
+        if sub is None:
+            rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
+        else:
+            rc = [rot_sub[c][sub] for c in range(6)]
         return jnp.stack([weight * (rc[k] * d0 + rc[3 + k] * d1) for k in range(3)], axis=-1)
 
     # The factors once per vertex and pose, written out as one (F, V) array: fused into the
@@ -277,13 +291,13 @@ def style_offsets(
     sy = s_rad * (f[-1] if rect else one)
     h = style.hollow
     lx, ly = local[:, 0], local[:, 1]
-    dpos = rotate(row, t, lx * sx - lx, ((ly - h) * sy + h) - ly)
+    dpos = rotate(row, t, sub, lx * sx - lx, ((ly - h) * sy + h) - ly)
     # fresh gathers for the normals (one consumer per gather, see blend_skin)
-    row, t = lax.optimization_barrier((row, t))
+    row, t, sub = lax.optimization_barrier((row, t, sub))
     nx, ny = local_normal[:, 0], local_normal[:, 1]
     safe_sx = jnp.where(sx > 1e-6, sx, 1.0)
     safe_sy = jnp.where(sy > 1e-6, sy, 1.0)
-    return dpos, rotate(row, t, nx / safe_sx - nx, ny / safe_sy - ny)
+    return dpos, rotate(row, t, sub, nx / safe_sx - nx, ny / safe_sy - ny)
 
 
 def _blend2(s0, s1, w0, w1):

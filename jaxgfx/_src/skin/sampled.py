@@ -281,7 +281,8 @@ def skin_sampled_tables(
             ``u``; on the bench's limb Q = 16 ran at 0.87x LBS against 0.50x (CPU time, chunks
             of 8) and deviated from the unrounded path by 0.047 % of the radius on average
             (max 2.0 %; the unrounded path deviates from exact skinning by 0.032 %, max 1.75 %).
-            The style offsets keep the per-vertex interpolation.
+            The style offsets likewise read the dominant spline's rotation from sub-rows
+            (:func:`style_offset_sampled` at the rounded ``u``).
 
     Returns:
         Positions (V, 3) and unit normals (V, 3).
@@ -327,5 +328,6 @@ def skin_sampled_tables(
         jnp.asarray(binding.dominant_local_normal),
         radial=radial,
         rect=rect,
+        subrows=subrows,
     )
     return pos + dpos, _normalize(nrm + dnrm, jnp.array([0.0, 1.0, 0.0]))
