@@ -237,7 +237,9 @@ def style_offsets(
         sub = jnp.round(coord * subrows).astype(jnp.int32)
         coord = sub.astype(coord.dtype) / subrows  # exact for Q a power of 2
         f_sub = jnp.arange(subrows, dtype=style_table.dtype) / subrows
-        rot_sub = [(cols[c][:, None] + f_sub * cols[9 + c][:, None]).reshape(-1) for c in range(6)]
+        rot_sub = lax.optimization_barrier(
+            [(cols[c][:, None] + f_sub * cols[9 + c][:, None]).reshape(-1) for c in range(6)]
+        )
     r0 = jnp.floor(coord)
     t = coord - r0
     row = r0.astype(jnp.int32)

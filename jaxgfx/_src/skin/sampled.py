@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
 from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
@@ -312,7 +313,9 @@ def skin_sampled_tables(
         f = jnp.arange(subrows, dtype=skinning.dtype) / subrows
         sub = skinning[:, None, :12] + f[None, :, None] * skinning[:, None, 12:]
         sub_index = jnp.round(coord * subrows).astype(jnp.int32)
-        pos, nrm = blend_skin(sub.reshape(-1, 12).T, sub_index, weight, None, rest, rest_normal)
+        # written out once per pose: fused into the gathers, every read would redo the lerp
+        table = lax.optimization_barrier(sub.reshape(-1, 12).T)
+        pos, nrm = blend_skin(table, sub_index, weight, None, rest, rest_normal)
     if not (radial or rect):
         return pos, nrm
     style = jax.tree_util.tree_map(jnp.asarray, style)
