@@ -102,6 +102,18 @@ LBS row the target is measured against; CPU time of one process, best of 7 inter
   63.6-63.8 against 63.6 ms; the pose-independent style terms (cross-section angle, texture and
   curve samples) written out behind a barrier: 61.5 -> 65.6 ms (no gain; XLA already keeps them
   out of the per-pose loop).  Both dropped.
+* New design, kept as an option (``skin_sampled(..., subrows=Q)``): the lerp moved from pass 2
+  into pass 1.  The table is expanded to Q sub-rows per sample (``m_s + (q / Q) s_s``, a per-pose
+  lerp of S Q rows, written out once: fused into the gathers every read redid the lerp) and
+  pass 2 is the LBS kernel with the pose-independent index ``round(u Q)``: one table read per
+  coefficient and influence, as LBS.  It equals the reference at ``u`` rounded to ``1/Q`` of a
+  sample step, a different approximation: against exact skinning mean 0.063 % / max 1.90 % of
+  the limb radius for Q = 16, against 0.032 % / 1.75 % (Q = 64: 0.039 % / 1.61 %, but its
+  147 KB table per pose leaves L1/L2: 0.62x).  Q = 16, chunks of 8, CPU time: 0.81-0.87x LBS
+  (0.45-0.50x without sub-rows, same runs); ``skinning_bench`` wall, four runs: 0.83-1.05x.
+  With both styles (the style rotation read from sub-rows too): 58.9 against 73.8 ms, 0.30x
+  against 0.24x LBS: the style offsets (about 19 ms) and the final renormalization (about 7 ms)
+  stay.
 * Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
   and the unstyled blend are computed once per fit and a step differentiates only the style
   offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).

@@ -279,9 +279,10 @@ def skin_sampled_tables(
             rows) and every influence reads its nearest sub-row, ``u`` rounded to ``1/Q`` of a
             sample step, with the LBS kernel's arithmetic (one table read per coefficient and
             influence instead of two).  Equals :func:`skin_vertex_sampled` at the rounded
-            ``u``; on the bench's limb Q = 16 ran at 0.87x LBS against 0.50x (CPU time, chunks
-            of 8) and deviated from the unrounded path by 0.047 % of the radius on average
-            (max 2.0 %; the unrounded path deviates from exact skinning by 0.032 %, max 1.75 %).
+            ``u``; on the bench's limb Q = 16 ran at 0.81-0.87x LBS against 0.45-0.50x (CPU
+            time, chunks of 8) and deviated from the unrounded path by 0.047 % of the radius
+            on average (max 2.0 %; the unrounded path deviates from exact skinning by
+            0.032 %, max 1.75 %; this one by 0.063 %, max 1.90 %).
             The style offsets likewise read the dominant spline's rotation from sub-rows
             (:func:`style_offset_sampled` at the rounded ``u``).
 
