@@ -712,20 +712,20 @@ def test_sampled_kernel_equals_per_vertex_reference():
         np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         outs.append((pos, nrm))
-        # sub-rows: the LBS kernel on the expanded table = the reference at u rounded to 1/4
-        qpos, qnrm = _skin_sampled_jit(rig, pose, prepared, None, samples=samples, subrows=4)
+        # sub-rows (blend and style offsets): the LBS kernel on the expanded tables = the
+        # references at u rounded to 1/4 (one compile, styled)
+        spos_q, snrm_q = _skin_sampled_jit(
+            rig, pose, prepared, style, samples=samples, styles="both", subrows=4
+        )
         qref = ref(
             table, np.round(coord * 4) / 4, prepared.weight, prepared.rest, prepared.rest_normal
         )
-        np.testing.assert_allclose(qpos, qref[0], rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
-        np.testing.assert_allclose(qnrm, qref[1], rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
-        rounding_moved.append(float(np.abs(qpos - rpos).max()))
-        spos_q, _ = _skin_sampled_jit(
-            rig, pose, prepared, style, samples=samples, styles="both", subrows=4
-        )
         rounded = prepared._replace(dominant_coord=np.round(coord[:, 0] * 4) / 4)
-        dpos_q, _ = style_ref(table_fn(rig, pose, samples=samples)[1], style, rounded)
+        dpos_q, dnrm_q = style_ref(table_fn(rig, pose, samples=samples)[1], style, rounded)
         np.testing.assert_allclose(spos_q, qref[0] + dpos_q, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        ref_nq = qref[1] + dnrm_q
+        ref_nq /= np.linalg.norm(ref_nq, axis=-1, keepdims=True)
+        np.testing.assert_allclose(snrm_q, ref_nq, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         # the style kernel equals the vmapped style_offset_sampled (both envelopes, hollow)
         spos, snrm = _skin_sampled_jit(rig, pose, prepared, style, samples=samples, styles="both")
         dpos, dnrm = style_ref(table_fn(rig, pose, samples=samples)[1], style, prepared)
@@ -734,6 +734,7 @@ def test_sampled_kernel_equals_per_vertex_reference():
         ref_n /= np.linalg.norm(ref_n, axis=-1, keepdims=True)
         np.testing.assert_allclose(snrm, ref_n, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         assert float(np.abs(dpos).max()) > 1e-3  # the style moved the vertices
+        rounding_moved.append(float(np.abs(spos_q - spos).max()))
     assert max(rounding_moved) > 1e-4  # rounding u is not a no-op (it is at the bind pose)
     # vmap over characters (poses) equals the loop
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *poses)
