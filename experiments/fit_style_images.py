@@ -10,6 +10,9 @@ fit never sees the target vertices; they are only used afterwards to score it:
 (b) the glTF Fox's tail spline (:func:`jaxgfx.skin.gltf_spline_chain`, 4 times in its clip):
     error over the tail's vertices in % of the tail's mean radius (skipped without the data).
 
+Each case also scores 2 held-out poses the fit never saw (``held_out_*`` columns): does the
+recovered style generalize to other poses, or only reproduce the fitted images?
+
 Figure: target vs fitted silhouettes and depth (and their difference) and the loss curves.
 
     python -m experiments.fit_style_images --quick --out out/fit_style_images
@@ -65,17 +68,20 @@ def two_cameras(center, distance, width, height, fov, direction):
 
 
 def limb_problem(width, height):
-    """Demo arm, 4 poses (bends 0.4-2.2 rad, twists +-0.6-1.2 rad), 2 cameras."""
+    """Demo arm, 4 poses (bends 0.4-2.2 rad, twists +-0.6-1.2 rad), 2 cameras; 2 held out."""
     arm = skin.demo_arm()
     bends = jnp.array([0.4, 1.0, 1.6, 2.2])
     twists = jnp.array([0.9, -0.6, 1.2, -1.0])
     poses = jax.vmap(lambda b, t: skin.demo_arm_pose(arm.rig, b, t))(bends, twists)
+    held_out = jax.vmap(lambda b, t: skin.demo_arm_pose(arm.rig, b, t))(
+        jnp.array([0.7, 1.9]), jnp.array([-0.3, 0.8])
+    )
     cams = two_cameras([0.0, 1.0, -0.4], 3.6, width, height, 40.0, [1.0, 0.3, 0.5])
 
     def skin_fn(style, pose):
         return skin.skin_exact(arm.rig, pose, arm.binding, style, styles="both")[0]
 
-    return skin_fn, poses, arm.faces, cams, LIMB_RADIUS, None
+    return skin_fn, poses, arm.faces, cams, LIMB_RADIUS, None, held_out
 
 
 def fox_problem(width, height):
@@ -91,8 +97,14 @@ def fox_problem(width, height):
             times.append(float(grid[i]))
         if len(times) == 4:
             break
+    times = sorted(times)
     poses = jax.tree_util.tree_map(
-        lambda *x: jnp.stack(x), *[skin.gltf_pose(fox, chain, t) for t in sorted(times)]
+        lambda *x: jnp.stack(x), *[skin.gltf_pose(fox, chain, t) for t in times]
+    )
+    # held out: halfway between the first two and the last two fitted times
+    held_out = jax.tree_util.tree_map(
+        lambda *x: jnp.stack(x),
+        *[skin.gltf_pose(fox, chain, 0.5 * (a + b)) for a, b in (times[:2], times[2:])],
     )
 
     def skin_fn(style, pose):
@@ -105,31 +117,35 @@ def fox_problem(width, height):
     cams = two_cameras(center, 1.6 * size, width, height, 40.0, [1.0, 0.5, -0.3])
     # the tail's mean cross-section radius about its spline (the binding's local offsets)
     radius = float(np.mean(np.linalg.norm(np.asarray(chain.binding.local)[:, 0, :2], axis=1)))
-    return skin_fn, poses, fox.faces, cams, radius, on_tail
+    return skin_fn, poses, fox.faces, cams, radius, on_tail, held_out
 
 
-def vertex_errors(skin_fn, poses, radius, subset):
-    """``errors(style, truth)``: mean and max vertex distance in % of ``radius`` (one compile)."""
+def vertex_errors(skin_fn, poses, held_out, radius, subset):
+    """``errors(style, truth)``: mean and max vertex distance in % of ``radius`` over the fitted
+    poses, then the same over the held-out poses (one compile: both sets in one batch)."""
     run = jax.jit(jax.vmap(skin_fn, in_axes=(None, 0)))
+    both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), poses, held_out)
+    n_fit = jax.tree_util.tree_leaves(poses)[0].shape[0]
 
     def errors(style, truth):
-        d = np.linalg.norm(np.asarray(run(style, poses)) - np.asarray(run(truth, poses)), axis=-1)
+        d = np.linalg.norm(np.asarray(run(style, both)) - np.asarray(run(truth, both)), axis=-1)
         if subset is not None:
             d = d[:, subset]
         d = d / radius * 100
-        return float(d.mean()), float(d.max())
+        fit, held = d[:n_fit], d[n_fit:]
+        return float(fit.mean()), float(fit.max()), float(held.mean()), float(held.max())
 
     return errors
 
 
 def run_case(name, problem, truth, init, steps, lr, weights, depth_clip):
-    skin_fn, poses, faces, cams, radius, subset = problem
+    skin_fn, poses, faces, cams, radius, subset, held_out = problem
     edges = silhouette_edges(faces)
     render = jax.jit(
         lambda s: skin.render_style_images(skin_fn, s, poses, faces, cams, edges=edges)
     )
     targets = render(truth)
-    errors = vertex_errors(skin_fn, poses, radius, subset)
+    errors = vertex_errors(skin_fn, poses, held_out, radius, subset)
     before = errors(init, truth)
     t0 = time.perf_counter()
     res = skin.fit_style_images(
@@ -150,6 +166,9 @@ def run_case(name, problem, truth, init, steps, lr, weights, depth_clip):
         "max_before_%": before[1],
         "mean_after_%": after[0],
         "max_after_%": after[1],
+        "held_out_mean_before_%": before[2],
+        "held_out_mean_after_%": after[2],
+        "held_out_max_after_%": after[3],
         "steps": steps,
         "seconds": seconds,
         "loss_before": float(res.loss_history[0]),
@@ -276,7 +295,8 @@ def main(argv=None) -> int:
     footer = (
         f"\n\nVertex errors in % of the limb radius ({LIMB_RADIUS}) for (a) and of the tail's "
         "mean cross-section radius for (b), over the tail's vertices; the fits saw only the "
-        f"images (4 poses x 2 cameras). Loss: silhouette L2 (weight {weights[0]:g}) + depth L2 in "
+        f"images (4 poses x 2 cameras); held_out_*: the same errors on 2 other poses the fit never "
+        f"saw. Loss: silhouette L2 (weight {weights[0]:g}) + depth L2 in "
         f"pixels at the target's depth (weight {weights[1]:g}) where both images cover, pixels "
         f"with a depth residual over {args.depth_clip:g} px left out (another surface); Adam, "
         f"peak learning rate {args.lr:g}, cosine decay; start: the neutral (identity) style; "

@@ -15,7 +15,9 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
 * 5.5 / 5.7 Spline skinning with styles (Eq. 5.7, 5.13) -- ``skinning``:
   :func:`skin_vertex_exact`, :func:`skin_exact` (frames per vertex).
 * 5.8 Fast computation (passes 1 and 2) -- ``sampled``: :func:`sample_spline_frames`,
-  :func:`prepare_sampled`, :func:`skin_vertex_sampled`, :func:`skin_sampled`.
+  :func:`prepare_sampled`, :func:`skin_vertex_sampled`, :func:`skin_sampled` (pass 2 alone:
+  :func:`skin_sampled_tables`; ``subrows=Q`` expands the table to Q sub-rows per sample in pass 1
+  so that pass 2 runs LBS's kernel, with ``u`` rounded to ``1/Q`` of a sample step).
 * 5.9 Baselines on the same skeleton -- ``baselines``: :func:`bone_transforms`,
   :func:`linear_blend_skinning` (SSD) and :func:`dual_quaternion_skinning` (Kavan et al.).
 * The mesh kernels behind :func:`linear_blend_skinning` and :func:`skin_sampled` -- ``kernels``
@@ -105,6 +107,7 @@ from jaxgfx._src.skin.sampled import SampledBinding as SampledBinding
 from jaxgfx._src.skin.sampled import prepare_sampled as prepare_sampled
 from jaxgfx._src.skin.sampled import sample_spline_frames as sample_spline_frames
 from jaxgfx._src.skin.sampled import skin_sampled as skin_sampled
+from jaxgfx._src.skin.sampled import skin_sampled_tables as skin_sampled_tables
 from jaxgfx._src.skin.sampled import skin_vertex_sampled as skin_vertex_sampled
 from jaxgfx._src.skin.sampled import style_offset_sampled as style_offset_sampled
 from jaxgfx._src.skin.skinning import skin_exact as skin_exact
@@ -167,6 +170,7 @@ __all__ = [
     "skin_vertex_sampled",
     "style_offset_sampled",
     "skin_sampled",
+    "skin_sampled_tables",
     "bone_transforms",
     "bone_weights_from_binding",
     "lbs_vertex",

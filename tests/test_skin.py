@@ -53,7 +53,7 @@ lbs_jit = jax.jit(skin.linear_blend_skinning)
 dqs_jit = jax.jit(skin.dual_quaternion_skinning)
 bones_jit = jax.jit(skin.bone_transforms)
 skin_exact_jit = jax.jit(skin.skin_exact, static_argnames=("styles", "dominant_only"))
-_skin_sampled_jit = jax.jit(skin.skin_sampled, static_argnames=("samples", "styles"))
+_skin_sampled_jit = jax.jit(skin.skin_sampled, static_argnames=("samples", "styles", "subrows"))
 
 
 def skin_sampled_jit(rig, pose, binding, style=None, *, samples=32, styles="none"):
@@ -513,6 +513,18 @@ def test_style_and_pose_bad_input():
         skin.skin_exact(
             rig, bad.__class__(rig.bind.points, jnp.array([1.0]), jnp.zeros(1)), binding
         )
+    # pass 2 alone: the tables' shapes are checked before anything is traced
+    prepared = skin.prepare_sampled(binding, 4)
+    with pytest.raises(ValueError, match="skinning"):
+        skin.skin_sampled_tables(jnp.zeros((5, 24)), jnp.zeros((5, 20)), prepared, samples=4)
+    with pytest.raises(ValueError, match="style_table"):
+        skin.skin_sampled_tables(jnp.zeros((4, 24)), jnp.zeros((4, 9)), prepared, samples=4)
+    with pytest.raises(ValueError, match="style is required"):
+        skin.skin_sampled_tables(
+            jnp.zeros((4, 24)), jnp.zeros((4, 20)), prepared, samples=4, styles="both"
+        )
+    with pytest.raises(TypeError, match="SampledBinding"):
+        skin.skin_sampled_tables(jnp.zeros((4, 24)), jnp.zeros((4, 20)), binding, samples=4)
     with pytest.raises(ValueError, match="joints"):
         skin.linear_blend_skinning(
             jnp.zeros((2, 3, 4)),
@@ -690,7 +702,7 @@ def test_sampled_kernel_equals_per_vertex_reference():
             lambda u, w, lv, ln: skin.style_offset_sampled(st, style, samples, u, w, lv, ln)
         )(b.dominant_coord, b.dominant_weight, b.dominant_local, b.dominant_local_normal)
     )
-    outs = []
+    outs, rounding_moved = [], []
     for pose in poses:
         table, _ = table_fn(rig, pose, samples=samples)
         pos, nrm = _skin_sampled_jit(rig, pose, prepared, None, samples=samples, styles="none")
@@ -700,6 +712,20 @@ def test_sampled_kernel_equals_per_vertex_reference():
         np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         outs.append((pos, nrm))
+        # sub-rows (blend and style offsets): the LBS kernel on the expanded tables = the
+        # references at u rounded to 1/4 (one compile, styled)
+        spos_q, snrm_q = _skin_sampled_jit(
+            rig, pose, prepared, style, samples=samples, styles="both", subrows=4
+        )
+        qref = ref(
+            table, np.round(coord * 4) / 4, prepared.weight, prepared.rest, prepared.rest_normal
+        )
+        rounded = prepared._replace(dominant_coord=np.round(coord[:, 0] * 4) / 4)
+        dpos_q, dnrm_q = style_ref(table_fn(rig, pose, samples=samples)[1], style, rounded)
+        np.testing.assert_allclose(spos_q, qref[0] + dpos_q, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+        ref_nq = qref[1] + dnrm_q
+        ref_nq /= np.linalg.norm(ref_nq, axis=-1, keepdims=True)
+        np.testing.assert_allclose(snrm_q, ref_nq, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         # the style kernel equals the vmapped style_offset_sampled (both envelopes, hollow)
         spos, snrm = _skin_sampled_jit(rig, pose, prepared, style, samples=samples, styles="both")
         dpos, dnrm = style_ref(table_fn(rig, pose, samples=samples)[1], style, prepared)
@@ -708,6 +734,8 @@ def test_sampled_kernel_equals_per_vertex_reference():
         ref_n /= np.linalg.norm(ref_n, axis=-1, keepdims=True)
         np.testing.assert_allclose(snrm, ref_n, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         assert float(np.abs(dpos).max()) > 1e-3  # the style moved the vertices
+        rounding_moved.append(float(np.abs(spos_q - spos).max()))
+    assert max(rounding_moved) > 1e-4  # rounding u is not a no-op (it is at the bind pose)
     # vmap over characters (poses) equals the loop
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *poses)
     bpos, bnrm = jax.jit(

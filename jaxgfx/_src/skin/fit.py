@@ -6,6 +6,12 @@ textures and curves, they can instead be fitted to example poses: given a rig, a
 poses and the target vertex positions in each pose, :func:`fit_style` minimizes the mean squared
 vertex error plus a smoothness penalty with optax (Adam by default).
 
+``samples=S`` fits through the sampled fast path (thesis 5.8, :func:`skin_sampled`) instead of
+exact spline skinning: the poses do not change during a fit, so pass 1 (the sampled frames) and
+the unstyled skin are computed once, and a step evaluates (and differentiates) only the style
+offsets of the dominant spline (:func:`~jaxgfx._src.skin.kernels.style_offsets`).  The
+gradient w.r.t. the textures and curves is a scatter-add into those small tables.
+
 Textures and curves are parametrized by their logarithm, so they stay positive (Eq. 5.9 and 5.12
 require ``T, C >= 0``) and the identity style is the zero parameter.
 """
@@ -24,9 +30,11 @@ from tqdm.auto import tqdm
 
 from jaxgfx._src.checks import check_int
 from jaxgfx._src.skin.binding import SkinBinding
+from jaxgfx._src.skin.kernels import style_offsets
 from jaxgfx._src.skin.rig import SplinePose, SplineRig
+from jaxgfx._src.skin.sampled import prepare_sampled, sample_spline_frames, skin_sampled_tables
 from jaxgfx._src.skin.skinning import skin_exact
-from jaxgfx._src.skin.styles import Style
+from jaxgfx._src.skin.styles import Style, _style_flags
 
 __all__ = [
     "FitResult",
@@ -103,8 +111,57 @@ def style_loss(
     pred = jax.vmap(
         lambda p: skin_exact(rig, p, binding, style, styles=styles, dominant_only=dominant_only)[0]
     )(poses)
+    return _loss_terms(params, pred, targets, smoothness)
+
+
+def _loss_terms(params, pred, targets, smoothness) -> tuple[jax.Array, jax.Array]:
     data = jnp.mean(jnp.sum((pred - targets) ** 2, axis=-1))
     return data + smoothness * smoothness_penalty(params), data
+
+
+def _check_sampled(binding: SkinBinding, samples: int, dominant_only: bool) -> int:
+    samples = check_int("samples", samples, low=2)
+    if not dominant_only and binding.weight.shape[1] > 1:
+        raise ValueError(
+            "samples: the sampled path styles the dominant spline only (thesis 5.8.2); "
+            "pass dominant_only=True"
+        )
+    return samples
+
+
+def _sampled_predictor(
+    rig: SplineRig, binding: SkinBinding, poses: SplinePose, samples: int, styles: str
+) -> Callable[[Style], jax.Array]:
+    """``style -> (P, V, 3)`` posed positions by the sampled path, pose work done once.
+
+    Pass 1 and the unstyled skin do not depend on the style: they are computed here, once, and
+    the returned function adds the style offsets (the only part a fitting step differentiates).
+    Equal to ``vmap(skin_sampled(...)[0])`` over the poses.
+    """
+    radial, rect = _style_flags(styles)
+    prep = prepare_sampled(binding, samples)
+
+    @jax.jit
+    def pose_terms(poses):
+        def one(pose):
+            skinning, style_table = sample_spline_frames(rig, pose, samples)
+            pos = skin_sampled_tables(skinning, style_table, prep, samples=samples)[0]
+            return pos, style_table
+
+        return jax.vmap(one)(poses)
+
+    base, style_tables = pose_terms(poses)
+
+    def predict(style: Style) -> jax.Array:
+        def one(style_table):
+            return style_offsets(
+                style_table, style, samples, prep.dominant_coord, prep.dominant_weight,
+                prep.dominant_local, prep.dominant_local_normal, radial=radial, rect=rect,
+            )[0]  # fmt: skip
+
+        return base + jax.vmap(one)(style_tables)
+
+    return predict
 
 
 def _check_fit_inputs(rig, binding, poses, targets, init_style):
@@ -140,6 +197,7 @@ def fit_style(
     optimizer: optax.GradientTransformation | None = None,
     styles: str = "both",
     dominant_only: bool = False,
+    samples: int | None = None,
     progress: bool = True,
     callback: Callable[[int, float], None] | None = None,
 ) -> FitResult:
@@ -161,6 +219,11 @@ def fit_style(
         optimizer: any optax transformation (default Adam with cosine decay).
         styles: 'radial', 'rect' or 'both'.
         dominant_only: style only the dominant spline.
+        samples: None fits through exact spline skinning; S >= 2 through the sampled fast path
+            (S samples per spline, pass 1 and the unstyled skin computed once; style on the
+            dominant spline, so ``dominant_only=True`` is required for several influences).
+            Faster per step, at the sampled path's accuracy (``experiments/fit_style.py``
+            reports both).
         progress: show a tqdm bar.
         callback: called as ``callback(step, loss)`` after each step.
 
@@ -173,26 +236,60 @@ def fit_style(
         raise ValueError(f"smoothness must be >= 0, got {smoothness}")
     if styles == "none":
         raise ValueError("styles must be 'radial', 'rect' or 'both' to fit a style")
+    _style_flags(styles)
+    if samples is not None:
+        samples = _check_sampled(binding, samples, dominant_only)
     if optimizer is None:
         schedule = optax.cosine_decay_schedule(learning_rate, max(steps, 1), alpha=0.01)
         optimizer = optax.adam(schedule)
     targets = jnp.asarray(targets, jnp.float32)
     hollow = jnp.asarray(init_style.hollow, jnp.float32)
-    params = style_to_params(init_style)
-    opt_state = optimizer.init(params)
 
-    def loss_fn(p):
-        return style_loss(
-            p,
-            rig,
-            binding,
-            poses,
-            targets,
-            hollow,
-            smoothness=smoothness,
-            styles=styles,
-            dominant_only=dominant_only,
-        )
+    if samples is None:
+
+        def loss_fn(p):
+            return style_loss(
+                p, rig, binding, poses, targets, hollow,
+                smoothness=smoothness, styles=styles, dominant_only=dominant_only,
+            )  # fmt: skip
+    else:
+        predict = _sampled_predictor(rig, binding, poses, samples, styles)
+
+        def loss_fn(p):
+            return _loss_terms(p, predict(params_to_style(p, hollow)), targets, smoothness)
+
+    return _run_optimizer(
+        loss_fn, init_style, optimizer, steps, desc="fit_style", progress=progress,
+        callback=callback,
+    )  # fmt: skip
+
+
+def _run_optimizer(
+    loss_fn: Callable[[dict], tuple[jax.Array, jax.Array]],
+    init_style: Style,
+    optimizer: optax.GradientTransformation,
+    steps: int,
+    *,
+    desc: str,
+    progress: bool,
+    callback: Callable[[int, float], None] | None,
+) -> FitResult:
+    """The optimization loop of the fitting drivers: one jitted step run ``steps`` times.
+
+    Args:
+        loss_fn: ``params -> (total loss, data term)`` of the log-parameters, pure.
+        init_style: the starting style (its hollow offset is kept).
+        optimizer: the optax transformation.
+        steps: steps to run.
+        desc: tqdm label.
+        progress: show a tqdm bar.
+        callback: called as ``callback(step, loss)`` after each step.
+
+    Returns:
+        :class:`FitResult`: the losses before each step and after the last, and the wall seconds
+        of the loop (compilation included).
+    """
+    params = style_to_params(init_style)
 
     @jax.jit
     def step(p, s):
@@ -200,10 +297,10 @@ def fit_style(
         updates, s = optimizer.update(grads, s, p)
         return optax.apply_updates(p, updates), s, loss, data
 
-    evaluate = jax.jit(loss_fn)
+    opt_state = optimizer.init(params)
     losses, datas = [], []
     t0 = time.perf_counter()
-    bar = tqdm(range(steps), disable=not progress, desc="fit_style", leave=False)
+    bar = tqdm(range(steps), disable=not progress, desc=desc, leave=False)
     for i in bar:
         params, opt_state, loss, data = step(params, opt_state)
         losses.append(float(loss))
@@ -212,10 +309,12 @@ def fit_style(
             bar.set_postfix(loss=f"{losses[-1]:.3e}")
         if callback is not None:
             callback(i, losses[-1])
-    final, final_data = evaluate(params)
+    # the loss after the last step without a second compile: one more step's value (its update
+    # is dropped); with no steps, the loss alone
+    final, final_data = jax.jit(loss_fn)(params) if steps == 0 else step(params, opt_state)[2:]
     seconds = time.perf_counter() - t0
     return FitResult(
-        style=params_to_style(params, hollow),
+        style=params_to_style(params, init_style.hollow),
         loss_history=np.asarray(losses + [float(final)]),
         data_history=np.asarray(datas + [float(final_data)]),
         seconds=seconds,

@@ -30,7 +30,6 @@ such outlines.  On the glTF Fox's tail this took the vertex error after 60 steps
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -38,10 +37,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from tqdm.auto import tqdm
 
 from jaxgfx._src.checks import check_float, check_int
-from jaxgfx._src.skin.fit import FitResult, params_to_style, smoothness_penalty, style_to_params
+from jaxgfx._src.skin.fit import (
+    FitResult,
+    _run_optimizer,
+    params_to_style,
+    smoothness_penalty,
+)
 from jaxgfx._src.skin.styles import Style
 from jaxgfx.camera import Camera, focal_lengths, validate_camera
 from jaxgfx.raster import rasterize
@@ -298,7 +301,11 @@ def fit_style_images(
     Args:
         skin_fn: ``skin_fn(style, pose) -> (V, 3)`` posed positions, pure, e.g.
             ``lambda s, p: skin.skin_exact(rig, p, binding, s, styles="both")[0]`` or
-            ``lambda s, p: skin.skin_gltf_chain(chain, p, s)[0]``.
+            ``lambda s, p: skin.skin_gltf_chain(chain, p, s)[0]``.  The sampled fast path
+            (thesis 5.8) with pass 1 done once: pass the pass-1 tables as the "poses",
+            ``tables = jax.vmap(lambda p: skin.sample_spline_frames(rig, p, 32))(poses)`` and
+            ``lambda s, t: skin.skin_sampled_tables(t[0], t[1], prep, s, samples=32,
+            styles="both")[0]`` with ``prep = skin.prepare_sampled(binding, 32)``.
         poses: a pytree of P stacked poses (leading axis P on every leaf).
         faces: (F, 3) int faces of the skinned mesh (concrete).
         cameras: C stacked cameras (:func:`jaxgfx.camera.stack_cameras`).
@@ -342,8 +349,6 @@ def fit_style_images(
         jnp.asarray(targets.silhouette, jnp.float32), jnp.asarray(targets.depth, jnp.float32)
     )
     hollow = jnp.asarray(init_style.hollow, jnp.float32)
-    params = style_to_params(init_style)
-    opt_state = optimizer.init(params)
 
     def loss_fn(p):
         return style_image_loss(
@@ -352,29 +357,7 @@ def fit_style_images(
             smoothness=smoothness,
         )  # fmt: skip
 
-    @jax.jit
-    def step(p, s):
-        (loss, data), grads = jax.value_and_grad(loss_fn, has_aux=True)(p)
-        updates, s = optimizer.update(grads, s, p)
-        return optax.apply_updates(p, updates), s, loss, data
-
-    losses, datas = [], []
-    t0 = time.perf_counter()
-    bar = tqdm(range(steps), disable=not progress, desc="fit_style_images", leave=False)
-    for i in bar:
-        params, opt_state, loss, data = step(params, opt_state)
-        losses.append(float(loss))
-        datas.append(float(data))
-        if progress and (i % 10 == 0 or i == steps - 1):
-            bar.set_postfix(loss=f"{losses[-1]:.3e}")
-        if callback is not None:
-            callback(i, losses[-1])
-    # the loss after the last step, without a second compile: one more step's value, unused update
-    final, final_data = jax.jit(loss_fn)(params) if steps == 0 else step(params, opt_state)[2:]
-    seconds = time.perf_counter() - t0
-    return FitResult(
-        style=params_to_style(params, hollow),
-        loss_history=np.asarray(losses + [float(final)]),
-        data_history=np.asarray(datas + [float(final_data)]),
-        seconds=seconds,
-    )
+    return _run_optimizer(
+        loss_fn, init_style, optimizer, steps, desc="fit_style_images", progress=progress,
+        callback=callback,
+    )  # fmt: skip

@@ -78,6 +78,45 @@ to 1e-6).  The kept kernel runs at 0.62-0.71x LBS (34.4 against 24.5 ms CPU time
 * On 2 devices (``sharded_vmap``, chunks of 4 / 8 / 20 / 40 poses): 0.50 / 0.45 / 0.51 / 0.45x
   the chunk-8 LBS; pass 1 runs once per chunk there (about 45 small ops each): 4.4 against
   1.4 ms.
+
+Session 10, like for like (every kernel in chunks of 8 poses, ``sharded_vmap(chunk=8)``, as the
+LBS row the target is measured against; CPU time of one process, best of 7 interleaved rounds,
+80 poses x 12,546 vertices, load 3.7-8.7; every variant equal to the kept kernel to 1e-6):
+
+* Chunks help LBS (24.4 -> 17.9 ms) and the styles (97.7 -> 65.8 ms) but not the sampled kernel
+  (35.4 -> 38.3 ms): chunked against chunked, sampled runs at 0.42-0.50x LBS and spline + both
+  styles at 0.27-0.30x, below the vmap-against-vmap figures above.  ``skinning_bench`` (wall,
+  best of 9): sampled 0.41x on 1 device and 0.52x on 2, styles 0.30x and 0.32x at load 2.4
+  (vmap against vmap in the same run: 0.57x and 0.44x); 0.48x / 0.47x and 0.30x / 0.26x at
+  load 7-8.  Chunks take LBS from 22.3 to 12.4 ms there (its outputs and raw normals stay in
+  cache) but the sampled kernel only from 38.9 to 30.1 ms: it is bound by its scalar arithmetic.
+  ``--xla_cpu_enable_fast_math=true`` did not help (sampled / styles against LBS, chunked, CPU
+  time, 2 alternating processes each at load 1-6: 0.47-0.65x / 0.29-0.45x with the flag,
+  0.66-0.69x / 0.40-0.41x without).
+* Pass 1 out of the chunk loop (vmapped once over a device's shard, pass 2 alone in the loop,
+  :func:`~jaxgfx._src.skin.sampled.skin_sampled_tables`): 38.9 -> 36.4 ms sampled, 62.1 -> 61.0 ms
+  with both styles on 2 devices; kept in the bench.  Pass 1 was not where the 2-device rows lost.
+* Where spline + both styles spends its 64.8 ms (1 device, chunked; LBS 17.7): the sampled blend
+  42.4, the style offsets alone 18.8, the final add and renormalization about 7 (57.8 without).
+  Normalizing once (raw blend + offset in one pass, instead of blend normalized, then the sum):
+  63.6-63.8 against 63.6 ms; the pose-independent style terms (cross-section angle, texture and
+  curve samples) written out behind a barrier: 61.5 -> 65.6 ms (no gain; XLA already keeps them
+  out of the per-pose loop).  Both dropped.
+* New design, kept as an option (``skin_sampled(..., subrows=Q)``): the lerp moved from pass 2
+  into pass 1.  The table is expanded to Q sub-rows per sample (``m_s + (q / Q) s_s``, a per-pose
+  lerp of S Q rows, written out once: fused into the gathers every read redid the lerp) and
+  pass 2 is the LBS kernel with the pose-independent index ``round(u Q)``: one table read per
+  coefficient and influence, as LBS.  It equals the reference at ``u`` rounded to ``1/Q`` of a
+  sample step, a different approximation: against exact skinning mean 0.063 % / max 1.90 % of
+  the limb radius for Q = 16, against 0.032 % / 1.75 % (Q = 64: 0.039 % / 1.61 %, but its
+  147 KB table per pose leaves L1/L2: 0.62x).  Q = 16, chunks of 8, CPU time: 0.81-0.87x LBS
+  (0.45-0.50x without sub-rows, same runs); ``skinning_bench`` wall, four runs: 0.83-1.05x.
+  With both styles (the style rotation read from sub-rows too): 58.9 against 73.8 ms, 0.30x
+  against 0.24x LBS: the style offsets (about 19 ms) and the final renormalization (about 7 ms)
+  stay.
+* Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
+  and the unstyled blend are computed once per fit and a step differentiates only the style
+  offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).
 """
 
 from __future__ import annotations
@@ -89,7 +128,7 @@ from jax import lax
 from jaxgfx._src.skin.geometry import _EPS_SQ
 from jaxgfx._src.skin.styles import Style, _cross_section, sample_curve, sample_texture
 
-__all__ = ["blend_skin", "style_offsets"]
+__all__ = ["blend_skin", "normalize_rows", "style_offsets"]
 
 
 def _coefficients(columns, index, weight, frac) -> list[jax.Array]:
@@ -149,10 +188,22 @@ def blend_skin(
     # Normalize in a second pass over the written (V, 3) normals.  Fused into the gather loop,
     # every output component would recompute all three components for the length (3x the
     # normal's gathers): 52 -> 30 ms CPU time for 80 poses x 12,546 vertices, 64 bones, I = 4.
-    raw = lax.optimization_barrier(raw)
+    return pos, normalize_rows(lax.optimization_barrier(raw))
+
+
+def normalize_rows(raw: jax.Array) -> jax.Array:
+    """``raw / |raw|`` row-wise for written-out (..., 3) normals (length floored at ``_EPS``).
+
+    Args:
+        raw: (..., 3) normals, already written out (behind an ``optimization_barrier``): fused
+            into a gather loop, every component would recompute all three for the length.
+
+    Returns:
+        (..., 3) unit normals.
+    """
     nx, ny, nz = raw[..., 0], raw[..., 1], raw[..., 2]
     s = lax.rsqrt(jnp.maximum(nx * nx + ny * ny + nz * nz, _EPS_SQ))
-    return pos, jnp.stack([nx * s, ny * s, nz * s], axis=-1)
+    return jnp.stack([nx * s, ny * s, nz * s], axis=-1)
 
 
 def style_offsets(
@@ -166,6 +217,7 @@ def style_offsets(
     *,
     radial: bool,
     rect: bool,
+    subrows: int | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """:func:`style_offset_sampled` of every vertex in structure-of-arrays layout.
 
@@ -183,10 +235,23 @@ def style_offsets(
         weight: (V,) its weight.
         local, local_normal: (V, 3) its ``v'`` and spline-space normal.
         radial, rect: which envelopes to apply.
+        subrows: None interpolates the rotation per vertex; Q rounds ``coord`` to ``1/Q`` of a
+            sample step and reads the rotation from a table expanded to Q sub-rows per sample
+            (one gather per value instead of two; as ``skin_sampled_tables(subrows=Q)``).
 
     Returns:
-        Position offsets (V, 3) and normal offsets (V, 3), as the reference's.
+        Position offsets (V, 3) and normal offsets (V, 3), as the reference's (at the rounded
+        ``coord`` with ``subrows``).
     """
+    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
+    sub = None
+    if subrows is not None:
+        sub = jnp.round(coord * subrows).astype(jnp.int32)
+        coord = sub.astype(coord.dtype) / subrows  # exact for Q a power of 2
+        f_sub = jnp.arange(subrows, dtype=style_table.dtype) / subrows
+        rot_sub = lax.optimization_barrier(
+            [(cols[c][:, None] + f_sub * cols[9 + c][:, None]).reshape(-1) for c in range(6)]
+        )
     r0 = jnp.floor(coord)
     t = coord - r0
     row = r0.astype(jnp.int32)
@@ -199,7 +264,6 @@ def style_offsets(
     )
     crv = jax.vmap(sample_curve, in_axes=(None, 0))(style.curves, x) if rect else None
     front = jnp.maximum(-cos_a, 0.0)
-    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
 
     def factors(row) -> list[jax.Array]:
         """The envelope factors of ``sx = s_rad s_l`` and ``sy = s_rad s_f``, each (V,)."""
@@ -219,9 +283,12 @@ def style_offsets(
             out.append(_blend2(crv[:, 0], crv[:, 2], front * bend, twist))  # s_f
         return out
 
-    def rotate(row, t, d0, d1):
+    def rotate(row, t, sub, d0, d1):
         # w R(x) (d0, d1, 0): the third column meets a zero (styles leave v'_z alone)
-        rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
+        if sub is None:
+            rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
+        else:
+            rc = [rot_sub[c][sub] for c in range(6)]
         return jnp.stack([weight * (rc[k] * d0 + rc[3 + k] * d1) for k in range(3)], axis=-1)
 
     # The factors once per vertex and pose, written out as one (F, V) array: fused into the
@@ -238,13 +305,13 @@ def style_offsets(
     sy = s_rad * (f[-1] if rect else one)
     h = style.hollow
     lx, ly = local[:, 0], local[:, 1]
-    dpos = rotate(row, t, lx * sx - lx, ((ly - h) * sy + h) - ly)
+    dpos = rotate(row, t, sub, lx * sx - lx, ((ly - h) * sy + h) - ly)
     # fresh gathers for the normals (one consumer per gather, see blend_skin)
-    row, t = lax.optimization_barrier((row, t))
+    row, t, sub = lax.optimization_barrier((row, t, sub))
     nx, ny = local_normal[:, 0], local_normal[:, 1]
     safe_sx = jnp.where(sx > 1e-6, sx, 1.0)
     safe_sy = jnp.where(sy > 1e-6, sy, 1.0)
-    return dpos, rotate(row, t, nx / safe_sx - nx, ny / safe_sy - ny)
+    return dpos, rotate(row, t, sub, nx / safe_sx - nx, ny / safe_sy - ny)
 
 
 def _blend2(s0, s1, w0, w1):
