@@ -40,7 +40,7 @@ def volume(vertices: np.ndarray, faces: np.ndarray) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="coarser mesh, smaller images")
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", default=None, help="write the table (Markdown, JSON) and figures here")
     args = ap.parse_args(argv)
     print(machine())
     n_around, n_along = (24, 41) if args.quick else (48, 81)

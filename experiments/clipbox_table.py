@@ -258,7 +258,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes, under a minute")
     ap.add_argument("--out", default=None, help="write table.md / table.json here")
-    ap.add_argument("--levels", type=int, default=None)
+    ap.add_argument(
+        "--levels", type=int, default=None, help="nested Clip-Boxes (default 7; --quick 2)"
+    )
     args = ap.parse_args(argv)
     quick = args.quick
     levels = args.levels or (2 if quick else 7)
