@@ -44,7 +44,9 @@ def image(cam, frame) -> np.ndarray:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="a small view, under a minute")
+    ap.add_argument(
+        "--quick", action="store_true", help="N = 32, 3 levels, 160x120 (under a minute)"
+    )
     ap.add_argument("--out", default=None, help="write the table (Markdown, JSON) and figures here")
     args = ap.parse_args(argv)
     n, levels = (32, 3) if args.quick else (64, 5)
