@@ -164,14 +164,17 @@ def resolve(
     return _resolve_rows(cam, g, inv_depth, face_id)
 
 
-def _resolve_rows(cam, g, inv_depth, face_id):
+def _resolve_rows(cam, g, inv_depth, face_id, row0=0, rows=None):
     """:func:`resolve` from the visible face's 9 camera-space corner values per pixel.
 
-    ``g``: 9 arrays (H*W,) (or a (9, H*W) array): corner-major x, y, z.
+    ``g``: 9 arrays (H*W,) (or a (9, H*W) array): corner-major x, y, z.  With ``rows``
+    (static) the pixels are image rows ``row0 .. row0 + rows`` only.
     """
-    h, w = cam.height, cam.width
+    w = cam.width
+    h = cam.height if rows is None else rows
+    rows_y = row0 + jnp.arange(h, dtype=jnp.int32)
     xs, ys = screen_to_camera(
-        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, jnp.arange(h, dtype=jnp.float32) + 0.5
+        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, rows_y.astype(jnp.float32) + 0.5
     )
     # Structure of arrays, pixels last: one row gather of the face's 9 corner values
     # per pixel, then (N,) vectors.  (An (N, 3) layout with jnp.cross is ~3x slower on
@@ -236,14 +239,14 @@ def interpolate(attributes: jax.Array, faces: jax.Array, tri_id: jax.Array, bary
 
 
 def _face_corners(faces, face_id):
-    """The 3 vertex indices of face ``face_id`` (N,) as 3 rows (3, N).
+    """The 3 vertex indices of face ``face_id`` (N,) as 3 arrays (N,).
 
-    1-D gathers (one per corner, and per coordinate by the callers) fuse into their
-    consumers on XLA:CPU; an (N, 3) row gather and its transpose are materialised
-    (28 MB each for 1024x768 pixels, fresh memory every call).
+    The callers then gather 1-D arrays (one per corner and coordinate), which fuse
+    into their consumers on XLA:CPU; an (N, 9) row gather and its transpose are
+    materialised (28 MB each for 1024x768 pixels, fresh memory every call).
     """
-    ft = faces.T
-    return [jnp.take(ft[k], face_id, mode="clip") for k in range(3)]
+    fv = jnp.take(faces, face_id, axis=0, mode="clip")  # (N, 3): no (3, F) copy of faces
+    return [fv[:, k] for k in range(3)]
 
 
 def _cross(a, b):
@@ -327,15 +330,40 @@ def rasterize(
     inv_depth, face_id = visible_faces(
         *one, cull_backfaces=cull_backfaces, block=block, chunk=chunk
     )
-    # The visible face's camera-space corners, gathered per pixel (not an (F, 3, 3)
-    # table: see interpolate).
-    fid = face_id[0]
-    fv = _face_corners(faces, jnp.where(fid != _NO_TRI, fid, 0))
     pv = world_to_camera(cam, vertices).T  # (3, V)
-    g = [jnp.take(pv[c], fv[k], mode="clip") for k in range(3) for c in range(3)]
-    depth, tri_id, bary = _resolve_rows(cam, g, inv_depth[0], fid)
-    color = interpolate(attributes, faces, tri_id, bary)
-    return RasterOutput(color, depth, tri_id, bary)
+    h, w = cam.height, cam.width
+    stripes = _stripes(h, w)
+    rows = h // stripes
+
+    def shade(i, inv, fid):
+        # The visible face's camera-space corners, gathered per pixel (not an (F, 3, 3)
+        # table: see interpolate).
+        fv = _face_corners(faces, jnp.where(fid != _NO_TRI, fid, 0))
+        g = [jnp.take(pv[c], fv[k], mode="clip") for k in range(3) for c in range(3)]
+        depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, i * rows, rows)
+        return interpolate(attributes, faces, tri_id, bary), depth, tri_id, bary
+
+    if stripes == 1:
+        return RasterOutput(*shade(0, inv_depth[0], face_id[0]))
+    # Large images are shaded a stripe of rows at a time: the per-pixel temporaries of
+    # a whole 1024x768 frame (~40 MB) come fresh from the OS every call (page faults).
+    out = jax.lax.map(
+        lambda a: shade(*a),
+        (
+            jnp.arange(stripes, dtype=jnp.int32),
+            inv_depth[0].reshape(stripes, -1),
+            face_id[0].reshape(stripes, -1),
+        ),
+    )
+    return RasterOutput(*(x.reshape(h, w, *x.shape[3:]) for x in out))
+
+
+def _stripes(h: int, w: int, pixels: int = 1 << 18) -> int:
+    """The fewest stripes of whole rows, dividing ``h``, with at most ``pixels`` each."""
+    for n in range(1, h + 1):
+        if h % n == 0 and (h // n) * w <= pixels:
+            return n
+    return h
 
 
 def face_normals(vertices: jax.Array, faces: jax.Array) -> jax.Array:

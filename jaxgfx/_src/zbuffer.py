@@ -348,7 +348,7 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     touching them (page faults, ~3 us per 4 KiB) cost as much as the rasterization.
     Setting up and z-buffering the faces in batches bounds the temporaries, and the
     result is the same: the z-buffer keeps the largest 1/z and the smallest face id
-    among exact ties whatever the order (padding faces ``(0, 0, 0)`` have zero area).
+    among exact ties whatever the order.
     """
     n = faces.shape[0]
     batches = -(-n // tri_batch)
@@ -356,14 +356,20 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
         setup = _frame_setup(cam, vertices, faces, cull_backfaces, block)
         return visibility(cam, setup, block, chunk)
     size = -(-n // batches)
-    faces = jnp.concatenate([faces, jnp.zeros((batches * size - n, 3), faces.dtype)])
     p_cam = world_to_camera(cam, vertices).T  # once, not per batch
+    # The last batch's window is moved back to end at the last face (no padded copy
+    # of the faces); its faces before b * size were drawn by the batch before.
+    done = jnp.arange(2 * size, dtype=jnp.int32) % size  # face of each setup slot
 
     def body(b, bufs):
-        first = b * size
+        first = jnp.minimum(b * size, n - size)
         part = jax.lax.dynamic_slice_in_dim(faces, first, size)
         setup = _frame_setup(cam, vertices, part, cull_backfaces, block, p_cam)
-        setup = setup._replace(ints=setup.ints.at[5].add(first))
+        setup = TriangleSetup(
+            setup.packed,
+            setup.ints.at[5].add(first),
+            jnp.where(done < b * size - first, 0, setup.nblocks),
+        )
         return _zbuffer(cam, setup, block, chunk, 1, *bufs)
 
     npix = cam.width * cam.height
