@@ -159,9 +159,22 @@ def resolve(
     Returns:
         ``(depth (H,W), tri_id (H,W), bary (H,W,3))``.
     """
-    h, w = cam.height, cam.width
+    hit = face_id != _NO_TRI
+    g = jnp.take(p_cam.reshape(-1, 9), jnp.where(hit, face_id, 0), axis=0, mode="clip").T
+    return _resolve_rows(cam, g, inv_depth, face_id)
+
+
+def _resolve_rows(cam, g, inv_depth, face_id, row0=0, rows=None):
+    """:func:`resolve` from the visible face's 9 camera-space corner values per pixel.
+
+    ``g``: 9 arrays (H*W,) (or a (9, H*W) array): corner-major x, y, z.  With ``rows``
+    (static) the pixels are image rows ``row0 .. row0 + rows`` only.
+    """
+    w = cam.width
+    h = cam.height if rows is None else rows
+    rows_y = row0 + jnp.arange(h, dtype=jnp.int32)
     xs, ys = screen_to_camera(
-        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, jnp.arange(h, dtype=jnp.float32) + 0.5
+        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, rows_y.astype(jnp.float32) + 0.5
     )
     # Structure of arrays, pixels last: one row gather of the face's 9 corner values
     # per pixel, then (N,) vectors.  (An (N, 3) layout with jnp.cross is ~3x slower on
@@ -172,7 +185,6 @@ def resolve(
         jnp.ones((h * w,), jnp.float32),
     )
     hit = face_id != _NO_TRI
-    g = jnp.take(p_cam.reshape(-1, 9), jnp.where(hit, face_id, 0), axis=0, mode="clip").T
     p0 = (g[0], g[1], g[2])
     e1 = (g[3] - g[0], g[4] - g[1], g[5] - g[2])
     e2 = (g[6] - g[0], g[7] - g[1], g[8] - g[2])
@@ -207,15 +219,34 @@ def interpolate(attributes: jax.Array, faces: jax.Array, tri_id: jax.Array, bary
         bary: (..., 3) barycentrics.
     """
     c = attributes.shape[-1]
-    # One row gather of the face's 3 corners per pixel from an (F, 3C) table, then
-    # channels-first arithmetic: an (..., 3, C) product summed over its corner axis
-    # costs ~50x more on XLA:CPU.
-    table = attributes[faces].reshape(faces.shape[0], 3 * c)
-    g = jnp.take(table, jnp.maximum(tri_id, 0).reshape(-1), axis=0, mode="clip").T  # (3C, N)
+    # Per pixel: its face's 3 vertex indices, then 1-D gathers per corner and channel,
+    # channels-first (an (..., 3, C) product summed over its corner axis costs ~50x
+    # more on XLA:CPU).  No (F, 3C) table: for large meshes its fresh memory (page
+    # faults) costs more than the gathers.
+    fv = _face_corners(faces, jnp.maximum(tri_id, 0).reshape(-1))
+    a = attributes.T  # (C, V)
     b = bary.reshape(-1, 3).T
-    out = b[0] * g[0:c] + b[1] * g[c : 2 * c] + b[2] * g[2 * c :]
+    out = jnp.stack(
+        [
+            b[0] * jnp.take(a[ch], fv[0], mode="clip")
+            + b[1] * jnp.take(a[ch], fv[1], mode="clip")
+            + b[2] * jnp.take(a[ch], fv[2], mode="clip")
+            for ch in range(c)
+        ]
+    )
     out = jnp.where(tri_id.reshape(-1) >= 0, out, 0.0)
     return out.T.reshape(*tri_id.shape, c)
+
+
+def _face_corners(faces, face_id):
+    """The 3 vertex indices of face ``face_id`` (N,) as 3 arrays (N,).
+
+    The callers then gather 1-D arrays (one per corner and coordinate), which fuse
+    into their consumers on XLA:CPU; an (N, 9) row gather and its transpose are
+    materialised (28 MB each for 1024x768 pixels, fresh memory every call).
+    """
+    fv = jnp.take(faces, face_id, axis=0, mode="clip")  # (N, 3): no (3, F) copy of faces
+    return [fv[:, k] for k in range(3)]
 
 
 def _cross(a, b):
@@ -289,7 +320,6 @@ def rasterize(
             jnp.full((h, w), -1, jnp.int32),
             jnp.zeros((h, w, 3), jnp.float32),
         )
-    p_cam = world_to_camera(cam, vertices)[faces]  # (F, 3, 3) for the per-pixel resolve
     # Which face a pixel sees is piecewise constant in the inputs: its derivative is zero
     # wherever it exists.  Cutting the gradient here says so, and keeps the z-buffer's
     # while_loop and scatters out of JVPs/VJPs (reverse mode cannot go through a while_loop).
@@ -300,9 +330,44 @@ def rasterize(
     inv_depth, face_id = visible_faces(
         *one, cull_backfaces=cull_backfaces, block=block, chunk=chunk
     )
-    depth, tri_id, bary = resolve(cam, p_cam, inv_depth[0], face_id[0])
-    color = interpolate(attributes, faces, tri_id, bary)
-    return RasterOutput(color, depth, tri_id, bary)
+    pv = world_to_camera(cam, vertices)  # (V, 3)
+    h, w = cam.height, cam.width
+    stripes = _stripes(h, w)
+    rows = h // stripes
+
+    def shade(i, inv, fid):
+        # The visible face's camera-space corners, gathered per pixel (not an (F, 3, 3)
+        # table: see interpolate).
+        fv = jnp.take(faces, jnp.where(fid != _NO_TRI, fid, 0), axis=0, mode="clip")
+        # One materialised (9, N) block (a stripe: at most 9 MB): the resolve's fusion
+        # then reads the same inputs whatever the batch, so its rounding does not
+        # depend on how a sweep splits frames over devices (1-D gathers fused into it
+        # gave depths 1.5e-6 apart).
+        g = jnp.take(pv, fv.reshape(-1), axis=0, mode="clip").reshape(-1, 9).T
+        depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, i * rows, rows)
+        return interpolate(attributes, faces, tri_id, bary), depth, tri_id, bary
+
+    if stripes == 1:
+        return RasterOutput(*shade(0, inv_depth[0], face_id[0]))
+    # Large images are shaded a stripe of rows at a time: the per-pixel temporaries of
+    # a whole 1024x768 frame (~40 MB) come fresh from the OS every call (page faults).
+    out = jax.lax.map(
+        lambda a: shade(*a),
+        (
+            jnp.arange(stripes, dtype=jnp.int32),
+            inv_depth[0].reshape(stripes, -1),
+            face_id[0].reshape(stripes, -1),
+        ),
+    )
+    return RasterOutput(*(x.reshape(h, w, *x.shape[3:]) for x in out))
+
+
+def _stripes(h: int, w: int, pixels: int = 1 << 18) -> int:
+    """The fewest stripes of whole rows, dividing ``h``, with at most ``pixels`` each."""
+    for n in range(1, h + 1):
+        if h % n == 0 and (h // n) * w <= pixels:
+            return n
+    return h
 
 
 def face_normals(vertices: jax.Array, faces: jax.Array) -> jax.Array:

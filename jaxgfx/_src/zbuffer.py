@@ -39,6 +39,9 @@ __all__ = [
 
 NO_TRI = np.int32(np.iinfo(np.int32).max)  # face id of an empty pixel
 _OUT = np.int32(np.iinfo(np.int32).max)  # pixel index of a rejected fragment (dropped)
+# Faces per setup batch (see _frame_visibility): ~13 MB of setup temporaries, under
+# glibc's largest mmap threshold (32 MB), so the buffers are reused between calls.
+TRI_BATCH = 1 << 15
 
 
 class ClippedTriangles(NamedTuple):
@@ -258,6 +261,14 @@ def visibility(
         and the smallest face index at that 1/z (``NO_TRI`` where empty).
     """
     npix = frames * cam.width * cam.height
+    zbuf = jnp.zeros((npix,), jnp.int32)
+    ibuf = jnp.full((npix,), NO_TRI, jnp.int32)
+    zbuf, ibuf = _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf)
+    return jax.lax.bitcast_convert_type(zbuf, jnp.float32), ibuf
+
+
+def _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf):
+    """:func:`visibility` continuing from z-buffer ``zbuf`` (1/z bits) and face buffer ``ibuf``."""
     n_tris = setup.nblocks.shape[0]
     per_frame = n_tris // frames if frames > 1 else 0
     offsets = jnp.cumsum(setup.nblocks)
@@ -306,16 +317,19 @@ def visibility(
         nxt = jax.lax.cond(c0 < total, fragments, no_fragments, c0)
         return (c0 + chunk, zbuf, ibuf, *nxt)
 
-    zbuf = jnp.zeros((npix,), jnp.int32)
-    ibuf = jnp.full((npix,), NO_TRI, jnp.int32)
     state = (jnp.int32(0), zbuf, ibuf, *no_fragments(0))
     _, zbuf, ibuf, *_ = jax.lax.while_loop(cond, body, state)
-    return jax.lax.bitcast_convert_type(zbuf, jnp.float32), ibuf
+    return zbuf, ibuf
 
 
-def _frame_setup(cam, vertices, faces, cull_backfaces, block):
-    """Clipping and setup of one frame (camera, vertices and faces of one item)."""
-    tris = clip_near(corners_soa(cam, vertices, faces), cam.near)
+def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam=None):
+    """Clipping and setup of one frame (camera, vertices and faces of one item).
+
+    ``p_cam``: the vertices already in camera space as (3, V), if at hand.
+    """
+    if p_cam is None:
+        p_cam = world_to_camera(cam, vertices).T
+    tris = clip_near(p_cam[:, faces.T], cam.near)
     if cull_backfaces:
         tri_w = vertices[faces]
         n = jnp.cross(tri_w[:, 1] - tri_w[:, 0], tri_w[:, 2] - tri_w[:, 0])
@@ -326,11 +340,49 @@ def _frame_setup(cam, vertices, faces, cull_backfaces, block):
     return triangle_setup(cam, tris, keep, block)
 
 
+def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch):
+    """Visibility of one frame, its faces set up ``tri_batch`` at a time.
+
+    A frame's setup holds ~200 bytes per face; for a large mesh (the 718 k-face terrain:
+    ~300 MB of temporaries) XLA:CPU's per-call buffers then come fresh from the OS and
+    touching them (page faults, ~3 us per 4 KiB) cost as much as the rasterization.
+    Setting up and z-buffering the faces in batches bounds the temporaries, and the
+    result is the same: the z-buffer keeps the largest 1/z and the smallest face id
+    among exact ties whatever the order.
+    """
+    n = faces.shape[0]
+    batches = -(-n // tri_batch)
+    if batches <= 1:
+        setup = _frame_setup(cam, vertices, faces, cull_backfaces, block)
+        return visibility(cam, setup, block, chunk)
+    size = -(-n // batches)
+    p_cam = world_to_camera(cam, vertices).T  # once, not per batch
+    # The last batch's window is moved back to end at the last face (no padded copy
+    # of the faces); its faces before b * size were drawn by the batch before.
+    done = jnp.arange(2 * size, dtype=jnp.int32) % size  # face of each setup slot
+
+    def body(b, bufs):
+        first = jnp.minimum(b * size, n - size)
+        part = jax.lax.dynamic_slice_in_dim(faces, first, size)
+        setup = _frame_setup(cam, vertices, part, cull_backfaces, block, p_cam)
+        setup = TriangleSetup(
+            setup.packed,
+            setup.ints.at[5].add(first),
+            jnp.where(done < b * size - first, 0, setup.nblocks),
+        )
+        return _zbuffer(cam, setup, block, chunk, 1, *bufs)
+
+    npix = cam.width * cam.height
+    bufs = (jnp.zeros((npix,), jnp.int32), jnp.full((npix,), NO_TRI, jnp.int32))
+    zbuf, ibuf = jax.lax.fori_loop(0, batches, body, bufs)
+    return jax.lax.bitcast_convert_type(zbuf, jnp.float32), ibuf
+
+
 def _lead(tree) -> int:
     return int(jax.tree_util.tree_leaves(tree)[0].shape[0])
 
 
-def _frames_kernel(cams, vertices, faces, *, cull_backfaces, block, chunk):
+def _frames_kernel(cams, vertices, faces, *, cull_backfaces, block, chunk, tri_batch):
     """Visibility of a stack of frames: every argument has a leading axis of 1 (shared) or B."""
     sizes = {_lead(cams), vertices.shape[0], faces.shape[0]}
     frames = max(sizes)
@@ -347,8 +399,8 @@ def _frames_kernel(cams, vertices, faces, *, cull_backfaces, block, chunk):
     # in cache, where one folded B*H*W z-buffer measured 1.3x slower for 32 bunny
     # frames at 512x384 (random scatters over 50 MB), and a vmapped setup ~5x slower.
     def one(k):
-        setup = _frame_setup(*frame_args(k), cull_backfaces, block)
-        return visibility(cam0, setup, block, chunk)
+        cam, v, f = frame_args(k)
+        return _frame_visibility(cam, v, f, cull_backfaces, block, chunk, tri_batch)
 
     inv_depth, face_id = jax.lax.map(one, jnp.arange(frames, dtype=jnp.int32))
     npix = cam0.width * cam0.height
@@ -356,9 +408,9 @@ def _frames_kernel(cams, vertices, faces, *, cull_backfaces, block, chunk):
 
 
 @functools.cache
-def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int):
+def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
     """The ``custom_vmap`` kernel for one static configuration (built once, cached)."""
-    static = dict(cull_backfaces=cull_backfaces, block=block, chunk=chunk)
+    static = dict(cull_backfaces=cull_backfaces, block=block, chunk=chunk, tri_batch=tri_batch)
 
     @jax.custom_batching.custom_vmap
     def kernel(cams, vertices, faces):
@@ -409,6 +461,7 @@ def visible_faces(
     cull_backfaces: bool = False,
     block: int = 2,
     chunk: int = 32768,
+    tri_batch: int = TRI_BATCH,
 ) -> tuple[jax.Array, jax.Array]:
     """Nearest face per pixel for a stack of frames (no gradients flow through it).
 
@@ -420,9 +473,12 @@ def visible_faces(
         vertices: (1 or B, V, 3) world positions.
         faces: (1 or B, F, 3) int32 vertex indices.
         cull_backfaces, block, chunk: as in :func:`jaxgfx.raster.rasterize` (static).
+        tri_batch: faces set up and z-buffered at a time (static); bounds a frame's
+            temporaries for large meshes without changing the result.
 
     Returns:
         ``(inv_depth, face_id)``, each (B, H*W): the largest 1/z (0 where empty) and
         the face index (``NO_TRI`` where empty).
     """
-    return _visible_faces_fn(bool(cull_backfaces), int(block), int(chunk))(cams, vertices, faces)
+    fn = _visible_faces_fn(bool(cull_backfaces), int(block), int(chunk), int(tri_batch))
+    return fn(cams, vertices, faces)
