@@ -14,8 +14,17 @@ rounds, identical frames): blocks of 4 take 0.96-0.98x the time of one step per
 plane is done).  Every RLE element
 of every visited column is projected *once* into the plane's ray-buffer column
 (4.5.4.2, Eq. 4.5) and culled by a floating horizon and a 1-bit coverage map
-(4.5.4.3).  Front-to-back visibility per ray-buffer pixel is resolved by a coverage
-tree in which the first (nearest) writer wins (4.5.4.4).
+(4.5.4.3).  The drawn elements are appended front to back to the plane's list, so
+a texel's writer is the first element covering its row (4.5.4.4; resolved for all
+texels by :mod:`.texels`, for the texels the screen reads by
+:func:`~jaxgfx.raycast.warp_lists`).
+
+The frame's fixed cost follows the view, not the plane budget (issue 15 item 3):
+a chunk of planes draws into one chunk-sized list buffer, and only the elements
+drawn are copied into the frame's pool.  Per-plane lists of ``K`` slots for the
+whole budget (58 MB at 1024x384) plus a per-texel index array (23 MB) were a
+fresh allocation every frame, which on XLA:CPU cost more than the traversal of a
+small scene.
 """
 
 from __future__ import annotations
