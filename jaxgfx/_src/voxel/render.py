@@ -276,6 +276,8 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         oversample=oversample,
         scene_shape=rle.shape,
         planes_per_voxel=s.planes_per_voxel,
+        lod_distance=lod,
+        levels=rle.levels,
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
     pool, start, drawn, coverage, stats = traverse_lists(
