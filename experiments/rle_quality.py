@@ -106,6 +106,7 @@ def acceptance(quick, render, small=None):
                 size=f"{cam.width}x{cam.height}",
                 hit_pixels=n,
                 planes=int(out.stats["planes"]),
+                overflow=int(out.stats["buffer_overflow"]),
                 depth_agree=round(100 * df, 2),
                 color_agree=round(100 * cf, 2),
                 passes="yes" if df >= 0.99 and cf >= 0.98 else "NO",
@@ -165,8 +166,8 @@ def main(argv=None) -> int:
     text += "|---|---|---|\n" + "".join(
         f"| {r['aa']} | {r['render_ms']} | {r['compile_s']} |\n" for r in rows
     )
-    heads = ["scene", "camera", "size", "hit_pixels", "planes", "depth_agree", "color_agree",
-             "passes"]  # fmt: skip
+    heads = ["scene", "camera", "size", "hit_pixels", "planes", "overflow", "depth_agree",
+             "color_agree", "passes"]  # fmt: skip
     text += (
         "\n## Agreement with the per-pixel 3-D DDA at every distance"
         " (% of pixels hit by either)\n\n"

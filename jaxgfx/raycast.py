@@ -28,12 +28,12 @@ A reader's table of contents: thesis section -> function (implementation in
 4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3) (``planes``).
 4.5.2 Concentric planes: :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
 4.5.3 Plane parameters: :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
-4.5.4 Rasterizing the ray buffer: :func:`traverse_planes`, :func:`traverse_plane`
-    (2-D DDA per plane, Eq. 4.5 projection, floating horizon and coverage culling,
-    coverage tree) (``traverse``).
-4.5.5 Displaying the ray buffer: :func:`ray_buffer_coords`, :func:`warp_ray_buffer`
-    (Eq. 4.6); the exact per-pixel re-walk :func:`refine_pixel`, :func:`refine_hits`
-    (not in the thesis) (``warp``).
+4.5.4 Rasterizing the ray buffer: :func:`traverse_lists` (2-D DDA per plane, Eq. 4.5
+    projection, floating horizon and coverage culling) (``traverse``); the texels
+    resolved by a coverage tree: :func:`traverse_planes`, :func:`traverse_plane` (``texels``).
+4.5.5 Displaying the ray buffer: :func:`ray_buffer_coords`, :func:`warp_ray_buffer`,
+    :func:`warp_lists` (Eq. 4.6); the exact per-pixel re-walk :func:`refine_pixel`,
+    :func:`refine_hits` (not in the thesis) (``warp``).
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals): :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
     (exact per-pixel 3-D DDA through the dense grid) (``reference``).
@@ -86,8 +86,9 @@ from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outsid
 from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
 from jaxgfx._src.voxel.render import render_rle as render_rle
-from jaxgfx._src.voxel.traverse import traverse_plane as traverse_plane
-from jaxgfx._src.voxel.traverse import traverse_planes as traverse_planes
+from jaxgfx._src.voxel.texels import traverse_plane as traverse_plane
+from jaxgfx._src.voxel.texels import traverse_planes as traverse_planes
+from jaxgfx._src.voxel.traverse import traverse_lists as traverse_lists
 from jaxgfx._src.voxel.tree import procedural_tree as procedural_tree
 from jaxgfx._src.voxel.volume import isotropic_shape as isotropic_shape
 from jaxgfx._src.voxel.volume import otsu_threshold as otsu_threshold
@@ -106,6 +107,7 @@ from jaxgfx._src.voxel.voxset import voxels_to_dense as voxels_to_dense
 from jaxgfx._src.voxel.warp import ray_buffer_coords as ray_buffer_coords
 from jaxgfx._src.voxel.warp import refine_hits as refine_hits
 from jaxgfx._src.voxel.warp import refine_pixel as refine_pixel
+from jaxgfx._src.voxel.warp import warp_lists as warp_lists
 from jaxgfx._src.voxel.warp import warp_ray_buffer as warp_ray_buffer
 
 __all__ = [
@@ -161,10 +163,12 @@ __all__ = [
     "PlaneParams",
     "plane_parameters",
     "plane_extent",
+    "traverse_lists",
     "traverse_planes",
     "traverse_plane",
     "ray_buffer_coords",
     "warp_ray_buffer",
+    "warp_lists",
     "refine_pixel",
     "refine_hits",
     # reference renderer

@@ -399,3 +399,54 @@ def test_encoded_volume_closed_over_under_jit():
     assert np.isfinite(np.asarray(passed.depth)).any()
     np.testing.assert_array_equal(np.asarray(closed.depth), np.asarray(passed.depth))
     np.testing.assert_array_equal(np.asarray(closed.color), np.asarray(passed.color))
+
+
+def test_warp_lists_equals_the_resolved_texel_warp(scene):
+    # render_rle's warp scans the unresolved lists of covered tiles only; it must
+    # give the thesis-form warp's frame (coverage tree per plane, every pixel),
+    # with the pixel ray's depth up to float rounding.  A pool too small for the
+    # frame's lists counts what it drops.
+    _, rle, _, _ = scene
+    cam = CAMERAS[2][1]
+    P = RC.default_num_planes(W, H, 2.0)
+    seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=P, oversample=2.0)
+    kw = dict(rows=W, max_steps=RC.default_max_steps(rle), lod_distance=jnp.inf)
+
+    @jax.jit
+    def both(rle, cam, seg):
+        tex, els, _ = RC.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
+        pool, start, drawn, cov, _ = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
+        small = RC.traverse_lists(rle, cam, seg, jnp.arange(P), pool_size=100, **kw)
+        a = RC.warp_ray_buffer(rle, cam, seg, tex, els)
+        b = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
+        return a, b, jnp.sum(drawn), jnp.sum(small[2]), jnp.sum(small[4][:, 3])
+
+    a, b, n, kept, lost = both(rle, cam, seg)
+    assert int(n) > 200 and 0.1 < np.isfinite(np.asarray(a[1])).mean() < 0.5
+    np.testing.assert_array_equal(np.asarray(a[0]), np.asarray(b[0]))
+    np.testing.assert_array_equal(np.asarray(a[2]), np.asarray(b[2]))
+    np.testing.assert_allclose(np.asarray(a[1]), np.asarray(b[1]), rtol=1e-6)
+    assert int(kept) == 100 and int(lost) == int(n) - 100
+
+
+def test_far_plane_spacing_follows_the_lod_cell():
+    # A big instance map seen from its corner: spacing planes a third of a
+    # level-0 voxel apart at the far corner would take thousands of planes,
+    # though mip cells there are 2^l voxels wide; with LOD the density follows
+    # the cell size, and without LOD (or for a near box) nothing changes.
+    cam = look_at([-38, 70, -38], [-37, 69.65, -37], 55, W, H, far=1e5)
+    vp = RC.vanishing_point(cam)
+
+    def count(shape, **kw):
+        P = RC.default_num_planes(W, H, 2.0, scene_shape=shape, planes_per_voxel=3.0)
+        seg = RC.screen_segments(cam, vp, num_planes=P, oversample=2.0, scene_shape=shape, **kw)
+        return int(np.sum(np.asarray(seg.count)))
+
+    big, near = (2560, 64, 2560), (24, 20, 24)
+    dense = count(big, planes_per_voxel=3.0)
+    lod = count(big, planes_per_voxel=3.0, lod_distance=96.0, levels=7)
+    thesis = count(big, planes_per_voxel=0.0)
+    assert thesis <= lod < dense / 3, (thesis, lod, dense)
+    assert count(near, planes_per_voxel=3.0) == count(
+        near, planes_per_voxel=3.0, lod_distance=96.0, levels=7
+    )

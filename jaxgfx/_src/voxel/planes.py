@@ -168,6 +168,8 @@ def screen_segments(
     oversample: float = 1.0,
     scene_shape=None,
     planes_per_voxel: float = 0.0,
+    lod_distance=jnp.inf,
+    levels: int = 1,
 ):
     """Splits the screen into four segments and counts their planes (Eq. 4.4).
 
@@ -181,7 +183,14 @@ def screen_segments(
     ``planes_per_voxel = k > 0`` they are spaced at most ``1 / k`` voxels apart
     at the box's farthest depth, so that a column narrower than a pixel is still
     crossed by a plane: the density follows the distance, up to the budget
-    (above ``oversample`` per pixel, which the budget always holds).
+    (above ``oversample`` per pixel, which the budget always holds).  With a
+    finite ``lod_distance`` (mip level ``l`` from ``lod_distance 2^(l-1)``, as in
+    :func:`~jaxgfx.raycast.render_rle`, ``levels`` of them) a cell at horizontal
+    distance ``t`` is wider than ``t / lod_distance`` voxels, so depth / cell size
+    never exceeds ``sqrt(lod_distance^2 + dy^2)`` (``dy``: the box's largest
+    height above or below the eye) nor falls below ``z_max / 2^(levels-1)``: the
+    spacing is set by that instead of ``z_max`` (a 2,560-voxel instance map seen
+    from its corner took 18,191 planes at 3 per level-0 voxel).
 
     Returns:
         :class:`Segments`.
@@ -198,6 +207,13 @@ def screen_segments(
     else:
         rect, z_max = scene_rect(cam, scene_shape)
     fx, fy = focal_lengths(cam)
+    z_eff = z_max
+    if scene_shape is not None:
+        ey = cam.position[1]
+        dy = jnp.maximum(jnp.abs(ey), jnp.abs(scene_shape[1] - ey))
+        lod = jnp.asarray(lod_distance, jnp.float32)
+        per_cell = jnp.maximum(jnp.sqrt(lod * lod + dy * dy), z_max / 2.0 ** (levels - 1))
+        z_eff = jnp.minimum(z_max, per_cell)
     for s in range(4):
         size_a, size_b, a_ref, vertical, neg = _seg_axes(cam, s)
         va, vb = _ab(vp_h, vertical)
@@ -229,7 +245,7 @@ def screen_segments(
         # voxel there is f / z_max pixels across the plane direction).
         f_b = fx if vertical else fy
         # (None while the box is not wholly in front: the thesis spacing.)
-        dense = jnp.where(jnp.isfinite(z_max), planes_per_voxel * z_max / f_b, 0.0)
+        dense = jnp.where(jnp.isfinite(z_max), planes_per_voxel * z_eff / f_b, 0.0)
         more = jnp.ceil((hi_u - lo_u) * ratio * jnp.maximum(dense, oversample))
         more = jnp.where(live, jnp.maximum(more, n), 0.0)
         u_lo.append(lo_u)

@@ -14,20 +14,28 @@ rounds, identical frames): blocks of 4 take 0.96-0.98x the time of one step per
 plane is done).  Every RLE element
 of every visited column is projected *once* into the plane's ray-buffer column
 (4.5.4.2, Eq. 4.5) and culled by a floating horizon and a 1-bit coverage map
-(4.5.4.3).  Front-to-back visibility per ray-buffer pixel is resolved by a coverage
-tree in which the first (nearest) writer wins (4.5.4.4).
+(4.5.4.3).  The drawn elements are appended front to back to the plane's list, so
+a texel's writer is the first element covering its row (4.5.4.4; resolved for all
+texels by :mod:`.texels`, for the texels the screen reads by
+:func:`~jaxgfx.raycast.warp_lists`).
+
+The frame's fixed cost follows the view, not the plane budget (issue 15 item 3):
+a chunk of planes draws into one chunk-sized list buffer, and only the elements
+drawn are copied into the frame's pool.  Per-plane lists of ``K`` slots for the
+whole budget (58 MB at 1024x384) plus a per-texel index array (23 MB) were a
+fresh allocation every frame, which on XLA:CPU cost more than the traversal of a
+small scene.
 """
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.voxel.codec import ELEMENT_WORDS, WORD_ROWS, pack_drawn, unpack_drawn_rows
+from jaxgfx._src.voxel.codec import ELEMENT_WORDS, pack_drawn
 from jaxgfx._src.voxel.grid import (
     _column_elements,
     _level_tables,
@@ -38,9 +46,9 @@ from jaxgfx._src.voxel.grid import (
 from jaxgfx._src.voxel.planes import Segments, plane_extent
 from jaxgfx.camera import Camera, camera_basis, focal_lengths
 
-__all__ = ["traverse_planes", "traverse_plane"]
+__all__ = ["traverse_lists"]
 
-_INF_KEY = np.int32(2**31 - 1)
+
 _TINY = 1e-6
 
 
@@ -92,53 +100,6 @@ def _unrank(rank, n, m):
 
 
 # ---------------------------------------------------------------------------
-# 4.5.4.4 Coverage tree: the nearest writer of every texel
-# ---------------------------------------------------------------------------
-
-
-def _coverage_tree(r0, r1, used, n_tree, depth_levels):
-    """Per-pixel coverage: a segment tree holding the minimum key over row intervals.
-
-    Each interval ``[r0, r1)`` is split into O(log R) tree nodes; a row's writer
-    is the minimum key on its path to the root.  Keys (list indices) grow front to back, so the
-    minimum is the nearest element: every pixel is drawn once (4.5.4.3).
-    """
-    key = jnp.arange(r0.shape[0], dtype=jnp.int32)
-    lpos = jnp.where(used, r0, 0) + n_tree
-    rpos = jnp.where(used, r1, 0) + n_tree
-    idxs = []
-    for _ in range(depth_levels):
-        take_l = (lpos < rpos) & ((lpos & 1) == 1)
-        idxs.append(jnp.where(take_l, lpos, 2 * n_tree))
-        lpos = jnp.where(take_l, lpos + 1, lpos)
-        take_r = (lpos < rpos) & ((rpos & 1) == 1)
-        rpos = jnp.where(take_r, rpos - 1, rpos)
-        idxs.append(jnp.where(take_r, rpos, 2 * n_tree))
-        lpos = lpos >> 1
-        rpos = rpos >> 1
-    idx = jnp.concatenate(idxs)
-    keys = jnp.tile(key, 2 * depth_levels)
-    tree = jnp.full((2 * n_tree,), _INF_KEY, jnp.int32)
-    return tree.at[idx].min(keys, mode="drop")
-
-
-def _texel_entries(trees):
-    """(P, n) int32 nearest element of every ray-buffer texel: min over the tree path.
-
-    Level ``lv`` of the tree is the contiguous slice ``[n >> lv, 2n >> lv)``;
-    repeating it ``2 ** lv`` times lines it up with the leaves (a broadcast,
-    which XLA:CPU runs far faster than the equivalent gather).
-    """
-    P, n_tree = trees.shape[0], trees.shape[1] // 2
-    entry = trees[:, n_tree:]
-    for lv in range(1, int(math.log2(n_tree)) + 1):
-        level = trees[:, n_tree >> lv : (2 * n_tree) >> lv]
-        up = jnp.broadcast_to(level[:, :, None], (P, n_tree >> lv, 1 << lv))
-        entry = jnp.minimum(entry, up.reshape(P, n_tree))
-    return entry
-
-
-# ---------------------------------------------------------------------------
 # 4.5.4.1 - 4.5.4.3 Traversal per plane: one loop step
 # ---------------------------------------------------------------------------
 
@@ -169,7 +130,6 @@ class _PlaneState(NamedTuple):
     lo: jax.Array  # () int32, floating horizon: first row not yet drawn
     hi: jax.Array  # () int32, floating horizon: one past the last row not yet drawn
     cov: jax.Array  # (ceil(rows / 32),) uint32, 1-bit coverage map of the column
-    ibuf: jax.Array  # (ELEMENT_WORDS, K) int32, drawn-element list (codec.pack_drawn)
     nbuf: jax.Array  # () int32, elements drawn so far (may exceed K: overflow)
     stats: jax.Array  # (3,) int32, elements in visited columns / processed / drawn
     k: jax.Array  # () int32, elements of the current column already handled
@@ -210,7 +170,6 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
     p0x, p0z = ex + hx * t_enter, ez + hz * t_enter
     ix0 = jnp.clip(jnp.floor(p0x), 0, X0 - 1).astype(jnp.int32)
     iz0 = jnp.clip(jnp.floor(p0z), 0, Z0 - 1).astype(jnp.int32)
-    ibuf0 = jnp.zeros((ELEMENT_WORDS, K), jnp.int32)
     done0 = (t_enter >= t_far) | (lo >= hi)
     carry0 = _PlaneState(
         ix=ix0,
@@ -221,7 +180,6 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
         lo=lo,
         hi=hi,
         cov=jnp.zeros((-(-rows // 32),), jnp.uint32),
-        ibuf=ibuf0,
         nbuf=jnp.int32(0),
         stats=jnp.zeros(3, jnp.int32),
         k=jnp.int32(0),
@@ -241,8 +199,13 @@ def _plane_step(
     K: int,
     n_words: int,
     Ec: int,
-) -> _PlaneState:
-    """One loop step of one plane (see :func:`traverse_planes`); vmap over planes."""
+) -> tuple[_PlaneState, jax.Array, jax.Array]:
+    """One loop step of one plane (see :func:`traverse_lists`); vmap over planes.
+
+    Returns:
+        ``(state, slots (Ec,), words (Ec, 5))``: the new state and the list slots
+        (``K`` for none) and words of the elements drawn in this step.
+    """
     hx, hz, inv_x, inv_z, t_far = consts.hx, consts.hz, consts.inv_x, consts.inv_z, consts.t_far
     s_min, s_max, hf = consts.s_min, consts.s_max, consts.hf
     p_num, q_num = consts.p_num, consts.q_num
@@ -258,7 +221,7 @@ def _plane_step(
     bx = (hx > 0).astype(jnp.int32)
     bz = (hz > 0).astype(jnp.int32)
     ix, iz, lev, t, done = carry.ix, carry.iz, carry.lev, carry.t, carry.done
-    lo, hi, cov, ibuf, nbuf = carry.lo, carry.hi, carry.cov, carry.ibuf, carry.nbuf
+    lo, hi, cov, nbuf = carry.lo, carry.hi, carry.cov, carry.nbuf
     stats, k, it = carry.stats, carry.k, carry.it
     c = jnp.left_shift(1, lev).astype(jnp.float32)
     # Exact 2-D DDA (Amanatides & Woo): exit of the current cell.
@@ -320,7 +283,6 @@ def _plane_step(
     cbase = rle.color_ptr[jnp.where(inside, col, 0)].astype(jnp.int32) + drawn_before
     bc = lambda v: jnp.broadcast_to(v, (Ec,))  # noqa: E731
     ivals = pack_drawn(r0, r1, top, bottom, cbase, bc(ix), bc(iz), bc(lev))
-    ibuf = ibuf.at[:, slot].set(ivals.T, mode="drop")
     n_draw = jnp.sum(draw).astype(jnp.int32)
     first = k == 0
     stats = stats + jnp.stack(
@@ -378,20 +340,23 @@ def _plane_step(
     done_n = done | (advance & ((t_out >= t_far) | leaves)) | (new_lo >= new_hi)
     move = ~done & advance
     keep = lambda a, b: jnp.where(done, a, b)  # noqa: E731
-    return _PlaneState(
-        ix=jnp.where(move, ix_n, ix),
-        iz=jnp.where(move, iz_n, iz),
-        lev=jnp.where(move, lev_n, lev),
-        t=jnp.where(move, t_out, t),
-        done=done_n,
-        lo=keep(lo, new_lo),
-        hi=keep(hi, new_hi),
-        cov=jnp.where(done, cov_in, cov),
-        ibuf=ibuf,
-        nbuf=nbuf + n_draw,
-        stats=stats,
-        k=jnp.where(advance, 0, k + Ec),
-        it=it + 1,
+    return (
+        _PlaneState(
+            ix=jnp.where(move, ix_n, ix),
+            iz=jnp.where(move, iz_n, iz),
+            lev=jnp.where(move, lev_n, lev),
+            t=jnp.where(move, t_out, t),
+            done=done_n,
+            lo=keep(lo, new_lo),
+            hi=keep(hi, new_hi),
+            cov=jnp.where(done, cov_in, cov),
+            nbuf=nbuf + n_draw,
+            stats=stats,
+            k=jnp.where(advance, 0, k + Ec),
+            it=it + 1,
+        ),
+        slot,
+        ivals,
     )
 
 
@@ -400,7 +365,7 @@ def _plane_step(
 # ---------------------------------------------------------------------------
 
 
-def traverse_planes(
+def traverse_lists(
     rle,
     cam: Camera,
     seg: Segments,
@@ -413,6 +378,7 @@ def traverse_planes(
     elements_per_step: int = 4,
     chunks: int = 32,
     block_steps: int = 4,
+    pool_size: int | None = None,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
@@ -430,10 +396,10 @@ def traverse_planes(
     visits exactly the non-empty cells of the plain DDA in fewer steps.  Each
     element of a visited column is projected once into the column (Eq. 4.5); elements left
     after floating-horizon culling are appended, front to back, to a list of
-    drawn intervals, and a coverage tree names every texel's first (nearest)
-    writer: each ray-buffer pixel is drawn once.  The tree is resolved into
-    one element index per texel before returning.  :func:`warp_ray_buffer`
-    reads the texels for the screen.
+    drawn intervals; a texel's writer is the first element of the list that
+    covers its row (:func:`traverse_planes` resolves them all,
+    :func:`~jaxgfx.raycast.warp_lists` only those the screen's covered pixels
+    read), so each ray-buffer pixel is drawn once.
 
     Args:
         rle: :class:`~jaxgfx.raycast.RLEVolume`.
@@ -457,118 +423,107 @@ def traverse_planes(
             only planes past ``sum(seg.count)`` is skipped.
 
     Returns:
-        ``(texels (P, n) int32, elements (P, 5, K) int32, stats (P, 4) int32)``: the
-        column's texels resolved through the coverage tree (index of each
-        row's nearest drawn element, ``>= K`` where none), the drawn elements (row range,
-        top / bottom voxel, colour index, cell x, z, level), and the counts of
-        elements in the visited columns, elements processed before the plane
-        was done, elements drawn, drawn elements dropped by a full list.
+        ``(elements (P, 5, K) int32, drawn (P,) int32, coverage (P, ceil(rows / 32))
+        uint32, stats (P, 4) int32)``: the drawn elements front to back (row range,
+        top / bottom voxel, colour index, cell x, z, level; entries past
+        ``min(drawn, K)`` are unset), how many were drawn (more than ``K``: the
+        farthest were dropped), the column's 1-bit coverage map (rows drawn), and
+        the counts of elements in the visited columns, elements processed before
+        the plane was done, elements drawn, drawn elements dropped by a full list.
     """
     E = rle.max_elements
     K = max(64, rows // 2) if buffer_size is None else buffer_size
+    K = -(-K // 8) * 8  # whole blocks of 8 (the copy into the pool)
     n_words = -(-rows // 32)
-    n_tree = 1 << max(1, math.ceil(math.log2(rows)))
-    depth_levels = int(math.log2(n_tree)) + 1
+    if pool_size is None:
+        pool_size = planes.shape[0] * K
     Ec = max(1, min(int(elements_per_step), E))
     # Every step either finishes a column (advancing the DDA) or works on Ec
     # more of its elements, so this bounds the loop.
     cap = max_steps * (-(-E // Ec))
 
-    def run(planes):
-        consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, K=K))(planes)
-        step = jax.vmap(
-            lambda q, c: _plane_step(
-                rle, cam, q, c, lod_distance=lod_distance, K=K, n_words=n_words, Ec=Ec
-            )
-        )
-        # The loop runs outside the vmap: its condition is "any plane still
-        # going", so the per-plane done masks do the work and the big
-        # ray-buffer carry is not copied through a batched select every step.
-        if block_steps <= 1:
-            carry = jax.lax.while_loop(
-                lambda c: jnp.any(~c.done) & (c.it[0] < cap), lambda c: step(consts, c), carry0
-            )
-        else:
-            # The design card's form: lax.scan over fixed blocks of steps (a
-            # done plane's step changes nothing), the early exit between blocks.
-            def block(c):
-                return jax.lax.scan(lambda c, _: (step(consts, c), None), c, None, block_steps)[0]
-
-            carry = jax.lax.while_loop(lambda c: jnp.any(~c.done) & (c.it[0] < cap), block, carry0)
-        ibuf, nbuf, stats = carry.ibuf, carry.nbuf, carry.stats
-        stats = jnp.concatenate([stats, jnp.maximum(nbuf - K, 0)[:, None]], axis=1)
-
-        def resolve(k):
-            def fn(ibuf, nbuf):
-                used = jnp.arange(k)[None, :] < nbuf[:, None]
-                trees = jax.vmap(
-                    lambda b, u: _coverage_tree(
-                        *unpack_drawn_rows(b[WORD_ROWS]), u, n_tree, depth_levels
-                    )
-                )(ibuf[:, :, :k], used)
-                return _texel_entries(trees)
-
-            return fn
-
-        # The tree costs O(list length) per plane and most lists are far
-        # shorter than K, so only the chunk's longest list's prefix is used.
-        tiers = sorted({t for t in (16, 32, 64, 128, 256) if t < K} | {K})
-        tier = jnp.searchsorted(jnp.asarray(tiers, jnp.int32), jnp.max(nbuf))
-        texels = jax.lax.switch(
-            jnp.minimum(tier, len(tiers) - 1), [resolve(t) for t in tiers], ibuf, nbuf
-        )
-        return texels, ibuf, stats
-
-    def empty(planes):
-        n = planes.shape[0]
-        return (
-            jnp.full((n, n_tree), _INF_KEY, jnp.int32),
-            jnp.zeros((n, ELEMENT_WORDS, K), jnp.int32),
-            jnp.zeros((n, 4), jnp.int32),
-        )
-
-    # Planes past the frame's plane count (the static budget covers vp on
-    # screen; most views need fewer) come in whole chunks that are skipped.
     P = planes.shape[0]
     n_chunks = max(1, min(int(chunks), P))
     size = -(-P // n_chunks)
+    Pp = n_chunks * size
     # Pad with an index past every budget so the padding planes are dead.
-    padded = jnp.concatenate([planes, jnp.full((n_chunks * size - P,), 2**30, planes.dtype)])
-    total = jnp.sum(seg.count)
-    # lax.map keeps one copy of the loop in the program (fast compiles).
-    outs = jax.lax.map(
-        lambda part: jax.lax.cond(jnp.any(part < total), run, empty, part),
-        padded.reshape(n_chunks, size),
+    padded = jnp.concatenate([planes, jnp.full((Pp - P,), 2**30, planes.dtype)])
+    # Planes past the frame's plane count (the static budget covers vp on
+    # screen; most views need fewer) come in whole chunks that are skipped.
+    live = jnp.any(padded.reshape(n_chunks, size) < jnp.sum(seg.count), axis=1)
+    order = jnp.nonzero(live, size=n_chunks, fill_value=0)[0]
+    step = jax.vmap(
+        lambda q, c: _plane_step(
+            rle, cam, q, c, lod_distance=lod_distance, K=K, n_words=n_words, Ec=Ec
+        )
     )
-    return tuple(o.reshape((n_chunks * size,) + o.shape[2:])[:P] for o in outs)
 
+    def chunk(i, bufs):
+        # One loop per chunk, so it stops when its own planes are done.  Its
+        # lists live in one chunk-sized buffer reused by every chunk (it stays
+        # in cache), and only the elements drawn are copied into the frame's
+        # pool: per-plane lists of K slots for the whole frame cost a fresh
+        # P K-word buffer per frame, more than the traversal of a small scene.
+        lists, pool, used, start, drawn, cov, stats = bufs
+        base = order[i] * size
+        part = jax.lax.dynamic_slice(padded, (base,), (size,))
+        consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, K=K))(part)
+        dest = jnp.arange(size, dtype=jnp.int32)[:, None]
 
-def traverse_plane(
-    rle,
-    cam: Camera,
-    seg: Segments,
-    plane: jax.Array,
-    *,
-    rows: int,
-    max_steps: int,
-    lod_distance: jax.Array,
-    buffer_size: int | None = None,
-    elements_per_step: int = 4,
-):
-    """Renders ONE plane (4.5.4): :func:`traverse_planes` for a batch of one.
+        def one(c, _=None):
+            state, lists = c
+            state, slot, words = step(consts, state)
+            return (state, lists.at[dest, :, slot].set(words, mode="drop")), None
 
-    Returns:
-        ``(texels (n,) int32, elements (5, K) int32, stats (4,) int32)``.
-    """
-    out = traverse_planes(
-        rle,
-        cam,
-        seg,
-        jnp.asarray(plane, jnp.int32)[None],
-        rows=rows,
-        max_steps=max_steps,
-        lod_distance=lod_distance,
-        buffer_size=buffer_size,
-        elements_per_step=elements_per_step,
+        # The loop runs outside the vmap: its condition is "any plane still
+        # going", so the per-plane done masks do the work.
+        def going(c):
+            return jnp.any(~c[0].done) & (c[0].it[0] < cap)
+
+        if block_steps <= 1:
+            body = lambda c: one(c)[0]  # noqa: E731
+        else:
+            # The design card's form: lax.scan over fixed blocks of steps (a
+            # done plane's step changes nothing), the early exit between blocks.
+            body = lambda c: jax.lax.scan(one, c, None, block_steps)[0]  # noqa: E731
+        state, lists = jax.lax.while_loop(going, body, (carry0, lists))
+        nbuf = state.nbuf
+        # The chunk's lists, back to back from the pool's first free slot.
+        kept = jnp.minimum(nbuf, K)
+        first = used + _prefix_sum(kept) - kept
+        stored = jnp.clip(pool_size - first, 0, kept)
+
+        # Copied 8 slots per plane at a time up to the chunk's longest list
+        # (most are short); a loop, as a cond would copy the whole pool.
+        def copy(b, pool):
+            j = b * 8 + jnp.arange(8, dtype=jnp.int32)[None, :]
+            slots = jnp.where(j < stored[:, None], first[:, None] + j, pool_size)
+            part = jax.lax.dynamic_slice_in_dim(lists, jnp.minimum(b * 8, K - 8), 8, axis=2)
+            return pool.at[:, slots].set(jnp.moveaxis(part, 1, 0), mode="drop")
+
+        pool = jax.lax.fori_loop(0, (jnp.max(stored) + 7) // 8, copy, pool)
+        lost = jnp.maximum(nbuf - stored, 0)
+        st = jnp.concatenate([state.stats, lost[:, None]], axis=1)
+        put = lambda buf, v: jax.lax.dynamic_update_slice_in_dim(buf, v, base, 0)  # noqa: E731
+        return (
+            lists,
+            pool,
+            used + jnp.sum(stored),
+            put(start, first),
+            put(drawn, stored),
+            put(cov, state.cov),
+            put(stats, st),
+        )
+
+    bufs = (
+        jnp.zeros((size, ELEMENT_WORDS, K), jnp.int32),
+        jnp.zeros((ELEMENT_WORDS, pool_size), jnp.int32),
+        jnp.int32(0),
+        jnp.zeros((Pp,), jnp.int32),
+        jnp.zeros((Pp,), jnp.int32),
+        jnp.zeros((Pp, n_words), jnp.uint32),
+        jnp.zeros((Pp, 4), jnp.int32),
     )
-    return jax.tree_util.tree_map(lambda x: x[0], out)
+    outs = jax.lax.fori_loop(0, jnp.sum(live.astype(jnp.int32)), chunk, bufs)
+    pool, per_plane = outs[1], outs[3:]
+    return (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))

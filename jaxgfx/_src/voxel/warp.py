@@ -16,9 +16,11 @@ from jaxgfx._src.voxel.codec import (
     ELEMENT_WORDS,
     WORD_COLOR,
     WORD_HEIGHTS,
+    WORD_ROWS,
     WORD_X,
     WORD_Z_LEVEL,
     unpack_drawn_box,
+    unpack_drawn_rows,
 )
 from jaxgfx._src.voxel.grid import (
     _column_elements,
@@ -28,9 +30,9 @@ from jaxgfx._src.voxel.grid import (
     _safe_div,
 )
 from jaxgfx._src.voxel.planes import Segments, _sgn_w
-from jaxgfx.camera import Camera, pixel_rays
+from jaxgfx.camera import Camera, camera_basis, pixel_rays, screen_to_camera
 
-__all__ = ["ray_buffer_coords", "warp_ray_buffer", "refine_pixel", "refine_hits"]
+__all__ = ["ray_buffer_coords", "warp_ray_buffer", "warp_lists", "refine_pixel", "refine_hits"]
 
 
 # ---------------------------------------------------------------------------
@@ -40,12 +42,17 @@ __all__ = ["ray_buffer_coords", "warp_ray_buffer", "refine_pixel", "refine_hits"
 
 def _ray_buffer_texel(cam: Camera, seg: Segments):
     """Per pixel: segment start, plane index in the segment, its count, row, ok."""
+    px = jnp.arange(cam.width, dtype=jnp.float32)[None, :] + 0.5
+    py = jnp.arange(cam.height, dtype=jnp.float32)[:, None] + 0.5
+    return _texel_at(cam, seg, px, py)
+
+
+def _texel_at(cam: Camera, seg: Segments, px, py):
+    """:func:`_ray_buffer_texel` at pixel centres ``(px, py)`` (broadcast arrays)."""
     W, H = cam.width, cam.height
     vp_h = seg.vp_h
     w = vp_h[2]
     sw = _sgn_w(w)
-    px = jnp.arange(W, dtype=jnp.float32)[None, :] + 0.5
-    py = jnp.arange(H, dtype=jnp.float32)[:, None] + 0.5
     dx = vp_h[0] - px * w
     dy = vp_h[1] - py * w
     vert = jnp.abs(dy) >= jnp.abs(dx)
@@ -173,19 +180,151 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     best_d = jax.lax.optimization_barrier(best_d)
     hit, idx, box = lookup(best_d)
     t_enter, t_exit = _box_hit(box, origins, dirs)
-    # A pixel ray that enters no candidate (it passes between the sampled
-    # planes' voxels) takes the point of its nearest texel's box closest to it.
+    color, depth = _shade(rle, hit, t_enter, t_exit, box, word(WORD_COLOR, idx), origins, dirs)
+    return color, depth, jnp.isfinite(best_t)
+
+
+def _shade(rle, hit, t_enter, t_exit, box, cbase, origins, dirs):
+    """Colour and depth where a pixel ray meets its chosen drawn element's box.
+
+    A ray that enters the box takes its entry; one that passes beside it (between
+    the sampled planes' voxels) the point of the box closest to it.
+    """
     t_hit = jnp.maximum(jnp.where(t_enter <= t_exit, t_enter, 0.5 * (t_enter + t_exit)), 0.0)
     top, bottom, _, _, lev = box
-    cbase = word(WORD_COLOR, idx)
     c = jnp.left_shift(1, lev).astype(jnp.float32)
     y_hit = origins[..., 1] + dirs[..., 1] * t_hit
     v = jnp.clip(jnp.floor(y_hit / c).astype(jnp.int32), bottom, top)
     cidx = jnp.clip(cbase + (top - v), 0, rle.colors.shape[0] - 1)
     rgb = rle.colors[cidx].astype(jnp.float32) / 255.0
-    color = jnp.where(hit[..., None], rgb, 0.0)
-    depth = jnp.where(hit, t_hit, jnp.inf)
-    return color, depth, jnp.isfinite(best_t)
+    return jnp.where(hit[..., None], rgb, 0.0), jnp.where(hit, t_hit, jnp.inf)
+
+
+def warp_lists(
+    rle,
+    cam: Camera,
+    seg: Segments,
+    pool,
+    start,
+    drawn,
+    coverage,
+    *,
+    neighbors: int = 1,
+    tile: int = 8,
+):
+    """:func:`warp_ray_buffer` from the unresolved lists, touching only covered pixels.
+
+    Same frame as :func:`warp_ray_buffer` on :func:`~jaxgfx.raycast.traverse_planes`'s
+    texels, bit for bit (tested), at a cost that follows the pixels the scene
+    covers rather than the screen.  A cheap full-screen pass tests each pixel's
+    candidate texels against the planes' 1-bit coverage maps; only the
+    ``tile x tile`` screen tiles holding a covered pixel are warped, a batch of
+    tiles per loop step.  A candidate texel's writer is found by scanning its
+    plane's list front to back for the first element covering the row (lists
+    are short: each element drew at least one new row), so neither the per-texel
+    index array nor the coverage trees are built.
+
+    Args:
+        pool, start, drawn, coverage: the lists (``(5, N)`` words, each plane's
+            from its ``start``, ``drawn`` long) and the planes' coverage maps
+            from :func:`~jaxgfx.raycast.traverse_lists`.
+        neighbors: static, as in :func:`warp_ray_buffer`.
+        tile: static screen tile side in pixels (speed only).
+
+    Returns:
+        ``(color (H, W, 3), depth (H, W), entered (H, W) bool)`` as
+        :func:`warp_ray_buffer`.
+    """
+    P, cap = coverage.shape[0], pool.shape[1]
+    n_words = coverage.shape[1]
+    n_rows = 32 * n_words
+    H, W = cam.height, cam.width
+    flat = pool.reshape(-1)
+    cov_flat = coverage.reshape(-1)
+    offs = [0] + [d for d in range(-neighbors, neighbors + 1) if d != 0]
+
+    def candidates(px, py):
+        st, i0, cnt, row, ok = _texel_at(cam, seg, px, py)
+        row_ok = ok & (row >= 0) & (row < n_rows)
+        row = jnp.clip(row, 0, n_rows - 1)
+        last = jnp.maximum(cnt - 1, 0)
+        planes = jnp.stack([jnp.clip(st + jnp.clip(i0 + d, 0, last), 0, P - 1) for d in offs])
+        return row_ok, row, planes
+
+    # Which pixels can see a drawn element at all (their candidates' coverage bits).
+    px0 = jnp.arange(W, dtype=jnp.float32)[None, :] + 0.5
+    py0 = jnp.arange(H, dtype=jnp.float32)[:, None] + 0.5
+    row_ok, row, planes = candidates(px0, py0)
+    words = jnp.take(cov_flat, planes * n_words + (row >> 5)[None], mode="clip")
+    bits = (words >> (row & 31).astype(jnp.uint32)[None]) & jnp.uint32(1)
+    covered = row_ok & jnp.any(bits != 0, axis=0)
+    ty, tx = -(-H // tile), -(-W // tile)
+    n_tiles = ty * tx
+    covered = jnp.pad(covered, ((0, ty * tile - H), (0, tx * tile - W)))
+    busy = jnp.any(covered.reshape(ty, tile, tx, tile), axis=(1, 3)).reshape(-1)
+    batch = max(1, 4096 // (tile * tile))
+    n_batches = -(-n_tiles // batch)
+    ids = jnp.nonzero(busy, size=n_batches * batch, fill_value=n_tiles)[0]
+    n_busy = jnp.sum(busy.astype(jnp.int32))
+    right, up, forward = camera_basis(cam)
+    ar = jnp.arange(tile, dtype=jnp.int32)
+
+    def warp_batch(b, bufs):
+        tid = jax.lax.dynamic_slice(ids, (b * batch,), (batch,))
+        y = (tid // tx * tile)[:, None, None] + ar[None, :, None]
+        x = (tid % tx * tile)[:, None, None] + ar[None, None, :]
+        px = jnp.broadcast_to(x, (batch, tile, tile)).astype(jnp.float32) + 0.5
+        py = jnp.broadcast_to(y, (batch, tile, tile)).astype(jnp.float32) + 0.5
+        row_ok, row, planes = candidates(px, py)
+        gx, gy = screen_to_camera(cam, px, py)
+        dirs = gx[..., None] * right + gy[..., None] * up + forward
+        origins = jnp.broadcast_to(cam.position, dirs.shape)
+        n = jnp.where(row_ok[None], drawn[planes], 0)
+        base = start[planes]
+        none = jnp.int32(2**31 - 1)
+
+        # The first list element covering the row (lists run front to back).
+        def scan_list(j, entry):
+            r0, r1 = unpack_drawn_rows(jnp.take(flat, base + (WORD_ROWS * cap + j), mode="clip"))
+            first = (entry == none) & (j < n) & (r0 <= row) & (row < r1)
+            return jnp.where(first, j, entry)
+
+        entry = jax.lax.fori_loop(0, jnp.max(n), scan_list, jnp.full(n.shape, none))
+        hit = entry < none
+        idx = base + jnp.where(hit, entry, 0)
+        word = lambda k, i: jnp.take(flat, i + k * cap, mode="clip")  # noqa: E731
+        box = unpack_drawn_box(*(word(k, idx) for k in (WORD_HEIGHTS, WORD_X, WORD_Z_LEVEL)))
+        t_enter, t_exit = _box_hit(box, origins, dirs)
+        entered = hit & (t_enter <= t_exit) & (t_exit >= 0.0)
+        cand_t = jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
+        # Nearest candidate the ray enters; the nearest texel wins ties and
+        # keeps the pixel where the ray enters none.
+        best = jnp.argmin(cand_t, axis=0)[None]
+        pick = lambda a: jnp.take_along_axis(a, best, axis=0)[0]  # noqa: E731
+        box_b = tuple(pick(v) for v in box)
+        t_enter, t_exit = _box_hit(box_b, origins, dirs)
+        color, depth = _shade(
+            rle, pick(hit), t_enter, t_exit, box_b, word(WORD_COLOR, pick(idx)), origins, dirs
+        )
+        out = (color, depth, jnp.any(entered, axis=0))
+        # Tile ids past the busy ones are n_tiles: dropped.
+        return tuple(
+            buf.at[tid].set(v.reshape((batch,) + buf.shape[1:]), mode="drop")
+            for buf, v in zip(bufs, out)
+        )
+
+    bufs = (
+        jnp.zeros((n_tiles, tile * tile, 3), jnp.float32),
+        jnp.full((n_tiles, tile * tile), jnp.inf, jnp.float32),
+        jnp.zeros((n_tiles, tile * tile), bool),
+    )
+    bufs = jax.lax.fori_loop(0, (n_busy + batch - 1) // batch, warp_batch, bufs)
+
+    def image(buf):
+        img = buf.reshape((ty, tx, tile, tile) + buf.shape[2:]).swapaxes(1, 2)
+        return img.reshape((ty * tile, tx * tile) + buf.shape[2:])[:H, :W]
+
+    return tuple(image(b) for b in bufs)
 
 
 # ---------------------------------------------------------------------------
