@@ -864,6 +864,30 @@ def test_blend_keeps_the_seam_and_settles():
     assert np.abs(np.asarray(again.vertices) - np.asarray(blended.vertices)).max() < 0.25
 
 
+def test_blend_compact_rows_equal_every_row(monkeypatch):
+    # weld_seam / blend_seam work on compacted ring and band rows when they fit their
+    # lists, on every row otherwise: both paths give bit-identical meshes.
+    from jaxgfx._src.terrain import meshing, postprocess
+
+    t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
+    viewer = np.array([5, 2, 7])
+    b0, b1 = (
+        clipbox_jit(t, jnp.asarray(T.clipbox_origin(viewer, lvl, N), jnp.int32), lvl, size=N)
+        for lvl in (0, 1)
+    )
+    inner, outer = smooth_jit(b0), smooth_jit(b1)
+    outs = []
+    for share in (1, 1 << 30):  # every ring/band row fits the list / none does
+        monkeypatch.setattr(meshing, "_RING_SHARE", share)
+        monkeypatch.setattr(postprocess, "_BAND_SHARE", share)
+        # a fresh function each time: jax.jit caches traces per function object
+        outs.append(jax.jit(lambda i, o: postprocess.blend_seam(i, o))(inner, outer))
+    for field in ("vertices", "normals"):
+        a, b = (np.asarray(getattr(o, field)) for o in outs)
+        np.testing.assert_array_equal(a, b, err_msg=field)
+    assert np.abs(np.asarray(outs[0].vertices) - np.asarray(inner.vertices)).max() > 0.05
+
+
 @pytest.mark.parametrize("name", ["saw", "csg"])
 def test_exported_mesh_is_one_surface(name):
     # Issue 17 item 5: the levels welded into one surface -- no duplicate vertices,

@@ -453,6 +453,9 @@ def voxels_to_mesh(
 # --------------------------------------------------------------------------------------
 
 
+_RING_SHARE = 8  # weld_seam's compact list holds 1/8 of the vertex capacity
+
+
 def weld_seam(inner: ClipBoxMesh, outer: ClipBoxMesh) -> ClipBoxMesh:
     """Welds an inner mesh onto the next outer level (3.4.5, Fig. 3.7).
 
@@ -473,8 +476,44 @@ def weld_seam(inner: ClipBoxMesh, outer: ClipBoxMesh) -> ClipBoxMesh:
     """
     n_in = inner.size
     c = inner.lattice
+    v_cap = c.shape[0]
     ring = jnp.any((c <= 1) | (c >= n_in - 1), axis=-1)
-    ring &= jnp.arange(c.shape[0]) < inner.num_vertices
+    ring &= jnp.arange(v_cap) < inner.num_vertices
+    # Only ring vertices change, typically a few % of the capacity: the eight outer
+    # lookups per vertex run on the ring's compacted ids (19 -> 3.5 ms for a
+    # 128^3 CSG box), over every row only when the ring outgrows the compact list.
+    cap = max(v_cap // _RING_SHARE, 1)
+
+    def compact(_):
+        sel = jnp.nonzero(ring, size=cap, fill_value=v_cap)[0]
+        row = jnp.minimum(sel, v_cap - 1)
+        ok, pos, nrm = _ring_values(inner, outer, c[row])
+        ok &= sel < v_cap
+        pos = jnp.where(ok[:, None], pos, inner.vertices[row])
+        nrm = jnp.where(ok[:, None], nrm, inner.normals[row])
+        return (
+            inner.vertices.at[sel].set(pos, mode="drop"),
+            inner.normals.at[sel].set(nrm, mode="drop"),
+        )
+
+    def every_row(_):
+        ok, pos, nrm = _ring_values(inner, outer, c)
+        ok &= ring
+        return (
+            jnp.where(ok[:, None], pos, inner.vertices),
+            jnp.where(ok[:, None], nrm, inner.normals),
+        )
+
+    pos, nrm = jax.lax.cond(jnp.sum(ring) <= cap, compact, every_row, None)
+    return dataclasses.replace(inner, vertices=pos, normals=nrm)
+
+
+def _ring_values(inner: ClipBoxMesh, outer: ClipBoxMesh, c: jax.Array):
+    """Outer-surface position and normal at inner lattice points ``c`` (K, 3).
+
+    Returns ``ok`` (K,) (every outer corner needed exists), positions and unit
+    normals (K, 3) in the inner mesh's frame.
+    """
     off = jnp.right_shift(inner.origin - outer.origin, outer.level)  # outer voxels
     lo = off + jnp.right_shift(c, 1)
     odd = (c & 1) == 1  # between two outer lattice vertices on this axis
@@ -482,9 +521,9 @@ def weld_seam(inner: ClipBoxMesh, outer: ClipBoxMesh) -> ClipBoxMesh:
     # differ only on odd axes share the vertex equally; an all-even vertex is an
     # exact copy of one outer vertex (weight 1), so the seam is bit-exact.
     weight = 1.0 / jnp.left_shift(1, jnp.sum(odd, axis=-1)).astype(jnp.float32)
-    pos = jnp.zeros(inner.vertices.shape, jnp.float32)
-    nrm = jnp.zeros(inner.normals.shape, jnp.float32)
-    ok = ring
+    pos = jnp.zeros(c.shape, jnp.float32)
+    nrm = jnp.zeros(c.shape, jnp.float32)
+    ok = jnp.ones(c.shape[:1], bool)
     for k in range(8):
         pick = jnp.asarray([(k >> a) & 1 for a in range(3)], bool)
         used = jnp.all(odd | ~pick, axis=-1)  # an upper corner only on odd axes
@@ -497,9 +536,7 @@ def weld_seam(inner: ClipBoxMesh, outer: ClipBoxMesh) -> ClipBoxMesh:
     shift = (outer.origin - inner.origin).astype(jnp.float32)
     n2 = jnp.sum(nrm * nrm, axis=-1, keepdims=True)
     nrm = jnp.where(n2 > 1e-20, nrm * jax.lax.rsqrt(jnp.maximum(n2, 1e-20)), 0.0)
-    pos = jnp.where(ok[:, None], pos + shift, inner.vertices)
-    nrm = jnp.where(ok[:, None], nrm, inner.normals)
-    return dataclasses.replace(inner, vertices=pos, normals=nrm)
+    return ok, pos + shift, nrm
 
 
 def visible_faces(mesh: ClipBoxMesh, inner_origin=None, inner_extent=None) -> jax.Array:

@@ -86,6 +86,24 @@ def _relax(p, idx, deg, step_w, iterations: int):
     return p
 
 
+def _relax_rows(p, row, idx, deg, step_w, iterations: int):
+    """:func:`_relax` of the rows ``row`` (K,) alone, the others held fixed; returns them (K, 3).
+
+    ``idx``, ``deg``, ``step_w`` are those rows' links, degrees and weights.
+    """
+
+    def step(p, _):
+        pe = jnp.concatenate([p, jnp.zeros((1, 3), p.dtype)])
+        total = pe[idx[:, 0]]
+        for k in range(1, 6):
+            total = total + pe[idx[:, k]]
+        q = p[row]
+        return p.at[row].set(q + step_w * (total - deg * q)), None
+
+    p, _ = jax.lax.scan(step, p, None, length=iterations)
+    return p[row]
+
+
 def smooth_mesh(mesh: ClipBoxMesh, *, iterations: int = 4, weight: float = 0.5) -> ClipBoxMesh:
     """Smoothing by vertex averaging over the vertex-to-vertex links (3.4.7, Fig. 3.9).
 
@@ -121,6 +139,9 @@ def mesh_normals(mesh: ClipBoxMesh) -> ClipBoxMesh:
     return dataclasses.replace(mesh, normals=nrm)
 
 
+_BAND_SHARE = 4  # blend_seam's compact band list holds 1/4 of the vertex capacity
+
+
 def blend_seam(
     inner: ClipBoxMesh, outer: ClipBoxMesh, *, band: int = 3, iterations: int = 12
 ) -> ClipBoxMesh:
@@ -152,7 +173,23 @@ def blend_seam(
     deg = jnp.sum(has, axis=-1, keepdims=True).astype(jnp.float32)
     step_w = jnp.where(free & (deg > 0), 0.8 / jnp.maximum(deg, 1.0), 0.0)
 
-    p = _relax(m.vertices, idx, deg, step_w, iterations)
+    # Only the band moves (about 9 % of the capacity for a 128^3 CSG box): relax its
+    # compacted rows (about 10 -> 5 ms there), every row only when the band outgrows it.
+    v_cap = m.vertices.shape[0]
+    cap = max(v_cap // _BAND_SHARE, 1)
+
+    def compact(p):
+        sel = jnp.nonzero(free[:, 0], size=cap, fill_value=v_cap)[0]
+        row = jnp.minimum(sel, v_cap - 1)
+        q = _relax_rows(p, row, idx[row], deg[row], step_w[row], iterations)
+        return p.at[sel].set(q, mode="drop")
+
+    p = jax.lax.cond(
+        jnp.sum(free) <= cap,
+        compact,
+        lambda p: _relax(p, idx, deg, step_w, iterations),
+        m.vertices,
+    )
     nrm = mesh_normals(dataclasses.replace(m, vertices=p)).normals
     # the ring keeps the outer mesh's normals (from weld_seam), so shading is seamless
     return dataclasses.replace(m, vertices=p, normals=jnp.where(ring[:, None], m.normals, nrm))
