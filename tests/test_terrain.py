@@ -840,9 +840,8 @@ def test_snap_to_surface_is_exact_far_away():
     np.testing.assert_array_equal(got[0][:, [0, 2]], np.asarray(v)[:, [0, 2]])
 
 
-def test_blend_keeps_the_seam_and_settles():
-    # blend_seam (the pipeline's weld) relaxes only the band inside the ring: the
-    # ring stays on the outer surface, and re-welding a blended mesh barely moves it.
+def _seam_pair():
+    """Smoothed level-0 and level-1 meshes of a small height map, the level-0 one with a seam."""
     t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
     viewer = np.array([5, 2, 7])
     b0, b1 = (
@@ -850,6 +849,13 @@ def test_blend_keeps_the_seam_and_settles():
         for lvl in (0, 1)
     )
     inner, outer = smooth_jit(b0), smooth_jit(b1)
+    return inner, outer
+
+
+def test_blend_keeps_the_seam_and_settles():
+    # blend_seam (the pipeline's weld) relaxes only the band inside the ring: the
+    # ring stays on the outer surface, and re-welding a blended mesh barely moves it.
+    inner, outer = _seam_pair()
     welded = jax.jit(T.weld_seam)(inner, outer)
     blended = PIPE.weld_fn(inner, outer)
     used = int(inner.num_vertices)
@@ -869,13 +875,7 @@ def test_blend_compact_rows_equal_every_row(monkeypatch):
     # lists, on every row otherwise: both paths give bit-identical meshes.
     from jaxgfx._src.terrain import meshing, postprocess
 
-    t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
-    viewer = np.array([5, 2, 7])
-    b0, b1 = (
-        clipbox_jit(t, jnp.asarray(T.clipbox_origin(viewer, lvl, N), jnp.int32), lvl, size=N)
-        for lvl in (0, 1)
-    )
-    inner, outer = smooth_jit(b0), smooth_jit(b1)
+    inner, outer = _seam_pair()
     outs = []
     for share in (1, 1 << 30):  # every ring/band row fits the list / none does
         monkeypatch.setattr(meshing, "_RING_SHARE", share)
