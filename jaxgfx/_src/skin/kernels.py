@@ -114,6 +114,19 @@ LBS row the target is measured against; CPU time of one process, best of 7 inter
   With both styles (the style rotation read from sub-rows too): 58.9 against 73.8 ms, 0.30x
   against 0.24x LBS: the style offsets (about 19 ms) and the final renormalization (about 7 ms)
   stay.
+* Kept (session 10, second half): the style offset folded into the blend loops
+  (:func:`blend_skin_styled`).  A small pass (:func:`style_scalars`) writes ``w (D(v') - v')``
+  in the rotation's first two columns for positions and normals as one (4, V) array per pose;
+  the blend loops add ``R_d (d_x, d_y, 0)`` with the dominant spline's rotation gathered as one
+  more influence (6 sub-row values, or 6 rows and 6 slopes without sub-rows), so no (V, 3)
+  offsets are written and re-read and the add pass goes.  The styled normal is the raw blend
+  plus the offset, normalized once: this is Eq. 5.13 (``skin_exact`` normalizes
+  ``Σ w_i R_i n'_i`` with the styled ``n'_d``), where the separate path normalized the blend,
+  added the offset and normalized again (max normal error against exact, 8 limb poses:
+  0.092 -> 0.0078 with 16 sub-rows, 0.092 -> 0.0052 without; positions unchanged to 1e-6).
+  80 poses x 12,546 vertices, chunks of 8, CPU time, best of 9 (7) interleaved rounds, load
+  3.0-3.3: 16 sub-rows + both styles 43.8 -> 34.5 ms, 0.42 -> 0.53x the chunked LBS (18.4 ms);
+  without sub-rows 79.9 -> 70.6 ms (0.28 -> 0.31x, LBS 22.3 ms, load from a test run alongside).
 * Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
   and the unstyled blend are computed once per fit and a step differentiates only the style
   offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).

@@ -293,7 +293,10 @@ def skin_sampled_tables(
             (:func:`style_offset_sampled` at the rounded ``u``).
 
     Returns:
-        Positions (V, 3) and unit normals (V, 3).
+        Positions (V, 3) and unit normals (V, 3).  With styles, the blend plus
+        :func:`style_offset_sampled`'s offsets; the normal is the raw blended normal plus the
+        normal offset, normalized once (Eq. 5.13, as ``skin_exact``), both computed in the
+        blend loops (:func:`~jaxgfx._src.skin.kernels.blend_skin_styled`).
     """
     radial, rect = _check_pass2(binding, style, styles)
     samples = check_int("samples", samples, low=2)
