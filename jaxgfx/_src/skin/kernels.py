@@ -127,6 +127,9 @@ LBS row the target is measured against; CPU time of one process, best of 7 inter
   80 poses x 12,546 vertices, chunks of 8, CPU time, best of 9 (7) interleaved rounds, load
   3.0-3.3: 16 sub-rows + both styles 43.8 -> 34.5 ms, 0.42 -> 0.53x the chunked LBS (18.4 ms);
   without sub-rows 79.9 -> 70.6 ms (0.28 -> 0.31x, LBS 22.3 ms, load from a test run alongside).
+  ``skinning_bench`` (wall, best of 9, load 3.1-3.3): 16 sub-rows + both styles 0.56x (1
+  device) and 0.58x (2 devices) the chunked LBS, without sub-rows 0.33x / 0.34x; vmapped over
+  all 80 poses at once the sub-row tables leave the cache: 0.39x (0.42x without sub-rows).
 * Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
   and the unstyled blend are computed once per fit and a step differentiates only the style
   offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).
