@@ -662,6 +662,15 @@ def test_lbs_kernel_equals_per_vertex_reference(influences):
         np.testing.assert_allclose(bnrm[k], lnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
 
 
+def _raw_sampled_normals(table, coord, weights, normals):
+    """NumPy: the blended normal of skin_vertex_sampled before normalizing, (V, 3)."""
+    table = np.asarray(table, np.float64)
+    r0 = np.floor(coord)
+    rows = table[r0.astype(np.int64)]  # (V, I, 24)
+    m = np.einsum("vi,vic->vc", weights, rows[..., :12] + (coord - r0)[..., None] * rows[..., 12:])
+    return np.einsum("vkj,vk->vj", m[:, :9].reshape(-1, 3, 3), normals)
+
+
 def test_sampled_kernel_equals_per_vertex_reference():
     rng = np.random.default_rng(12)
     samples = 8
@@ -723,14 +732,15 @@ def test_sampled_kernel_equals_per_vertex_reference():
         rounded = prepared._replace(dominant_coord=np.round(coord[:, 0] * 4) / 4)
         dpos_q, dnrm_q = style_ref(table_fn(rig, pose, samples=samples)[1], style, rounded)
         np.testing.assert_allclose(spos_q, qref[0] + dpos_q, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
-        ref_nq = qref[1] + dnrm_q
+        # the normal offset joins the raw blend, normalized once (Eq. 5.13, as skin_exact)
+        ref_nq = _raw_sampled_normals(table, np.round(coord * 4) / 4, weights, n) + dnrm_q
         ref_nq /= np.linalg.norm(ref_nq, axis=-1, keepdims=True)
         np.testing.assert_allclose(snrm_q, ref_nq, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         # the style kernel equals the vmapped style_offset_sampled (both envelopes, hollow)
         spos, snrm = _skin_sampled_jit(rig, pose, prepared, style, samples=samples, styles="both")
         dpos, dnrm = style_ref(table_fn(rig, pose, samples=samples)[1], style, prepared)
         np.testing.assert_allclose(spos, rpos + dpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
-        ref_n = rnrm + dnrm
+        ref_n = _raw_sampled_normals(table, coord, weights, n) + dnrm
         ref_n /= np.linalg.norm(ref_n, axis=-1, keepdims=True)
         np.testing.assert_allclose(snrm, ref_n, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         assert float(np.abs(dpos).max()) > 1e-3  # the style moved the vertices

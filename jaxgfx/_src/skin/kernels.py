@@ -114,6 +114,22 @@ LBS row the target is measured against; CPU time of one process, best of 7 inter
   With both styles (the style rotation read from sub-rows too): 58.9 against 73.8 ms, 0.30x
   against 0.24x LBS: the style offsets (about 19 ms) and the final renormalization (about 7 ms)
   stay.
+* Kept (session 10, second half): the style offset folded into the blend loops
+  (:func:`blend_skin_styled`).  A small pass (:func:`style_scalars`) writes ``w (D(v') - v')``
+  in the rotation's first two columns for positions and normals as one (4, V) array per pose;
+  the blend loops add ``R_d (d_x, d_y, 0)`` with the dominant spline's rotation gathered as one
+  more influence (6 sub-row values, or 6 rows and 6 slopes without sub-rows), so no (V, 3)
+  offsets are written and re-read and the add pass goes.  The styled normal is the raw blend
+  plus the offset, normalized once: this is Eq. 5.13 (``skin_exact`` normalizes
+  ``Σ w_i R_i n'_i`` with the styled ``n'_d``), where the separate path normalized the blend,
+  added the offset and normalized again (max normal error against exact, 8 limb poses:
+  0.092 -> 0.0078 with 16 sub-rows, 0.092 -> 0.0052 without; positions unchanged to 1e-6).
+  80 poses x 12,546 vertices, chunks of 8, CPU time, best of 9 (7) interleaved rounds, load
+  3.0-3.3: 16 sub-rows + both styles 43.8 -> 34.5 ms, 0.42 -> 0.53x the chunked LBS (18.4 ms);
+  without sub-rows 79.9 -> 70.6 ms (0.28 -> 0.31x, LBS 22.3 ms, load from a test run alongside).
+  ``skinning_bench`` (wall, best of 9, load 3.1-3.3): 16 sub-rows + both styles 0.56x (1
+  device) and 0.58x (2 devices) the chunked LBS, without sub-rows 0.33x / 0.34x; vmapped over
+  all 80 poses at once the sub-row tables leave the cache: 0.39x (0.42x without sub-rows).
 * Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
   and the unstyled blend are computed once per fit and a step differentiates only the style
   offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).
@@ -128,7 +144,14 @@ from jax import lax
 from jaxgfx._src.skin.geometry import _EPS_SQ
 from jaxgfx._src.skin.styles import Style, _cross_section, sample_curve, sample_texture
 
-__all__ = ["blend_skin", "normalize_rows", "style_offsets"]
+__all__ = [
+    "blend_skin",
+    "blend_skin_styled",
+    "normalize_rows",
+    "style_offsets",
+    "style_scalars",
+    "style_subrow_table",
+]
 
 
 def _coefficients(columns, index, weight, frac) -> list[jax.Array]:
@@ -244,14 +267,89 @@ def style_offsets(
         ``coord`` with ``subrows``).
     """
     cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
+    row, t, sub, d = style_scalars(
+        style_table,
+        style,
+        samples,
+        coord,
+        weight,
+        local,
+        local_normal,
+        radial=radial,
+        rect=rect,
+        subrows=subrows,
+        written=False,
+    )
+    rot_sub = None if subrows is None else style_subrow_table(style_table, subrows)
+
+    def rotate(row, t, sub, d0, d1):
+        # R(x) (d0, d1, 0): the third column meets a zero (styles leave v'_z alone)
+        if rot_sub is None:
+            rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
+        else:
+            rc = [rot_sub[c][sub] for c in range(6)]
+        return jnp.stack([rc[k] * d0 + rc[3 + k] * d1 for k in range(3)], axis=-1)
+
+    dpos = rotate(row, t, sub, d[0], d[1])
+    # fresh gathers for the normals (one consumer per gather, see blend_skin)
+    row, t, sub = lax.optimization_barrier((row, t, sub))
+    return dpos, rotate(row, t, sub, d[2], d[3])
+
+
+def style_subrow_table(style_table: jax.Array, subrows: int) -> jax.Array:
+    """(6, K S Q) sub-row table of the style rotation's first two columns, written out once.
+
+    Args:
+        style_table: (K * S, 20) style table from :func:`sample_spline_frames`.
+        subrows: Q sub-rows per sample (``b_s + (q / Q) slope_s``).
+
+    Returns:
+        (6, K S Q): ``b_N`` and ``b_B`` at every sub-row, one (K S Q,) column per value.
+    """
+    cols = style_table.T
+    f_sub = jnp.arange(subrows, dtype=style_table.dtype) / subrows
+    return lax.optimization_barrier(
+        jnp.stack([(cols[c][:, None] + f_sub * cols[9 + c][:, None]).reshape(-1) for c in range(6)])
+    )
+
+
+def style_scalars(
+    style_table: jax.Array,
+    style: Style,
+    samples: int,
+    coord: jax.Array,
+    weight: jax.Array,
+    local: jax.Array,
+    local_normal: jax.Array,
+    *,
+    radial: bool,
+    rect: bool,
+    subrows: int | None = None,
+    written: bool = True,
+) -> tuple[jax.Array, jax.Array, jax.Array | None, jax.Array]:
+    """The per-pose scalars of :func:`style_offsets`: rows and the weighted in-plane offsets.
+
+    The offset is ``R(x) d`` with ``d = w (D(v') - v')`` in the rotation's first two columns
+    (styles leave ``v'_z`` alone), so one pass can write ``d`` for positions and normals as a
+    (4, V) array and the rotation be applied where it is read (:func:`blend_skin_styled`).
+
+    Args:
+        style_table, style, samples, coord, weight, local, local_normal, radial, rect, subrows:
+            as :func:`style_offsets`.
+        written: True writes ``d`` out behind a barrier (for a loop that reads it with
+            gathers); False leaves it to fuse into its consumers (:func:`style_offsets`, where
+            a fit that uses the positions alone then never computes the normal's part).
+
+    Returns:
+        ``row`` (V,) int32 and ``t`` (V,) of the (rounded) coordinate, the sub-row index (V,)
+        int32 (None without ``subrows``), and ``d`` (4, V): ``w dx, w dy`` of the position and
+        ``w dnx, w dny`` of the normal, written out behind a barrier.
+    """
+    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
     sub = None
     if subrows is not None:
         sub = jnp.round(coord * subrows).astype(jnp.int32)
         coord = sub.astype(coord.dtype) / subrows  # exact for Q a power of 2
-        f_sub = jnp.arange(subrows, dtype=style_table.dtype) / subrows
-        rot_sub = lax.optimization_barrier(
-            [(cols[c][:, None] + f_sub * cols[9 + c][:, None]).reshape(-1) for c in range(6)]
-        )
     r0 = jnp.floor(coord)
     t = coord - r0
     row = r0.astype(jnp.int32)
@@ -283,14 +381,6 @@ def style_offsets(
             out.append(_blend2(crv[:, 0], crv[:, 2], front * bend, twist))  # s_f
         return out
 
-    def rotate(row, t, sub, d0, d1):
-        # w R(x) (d0, d1, 0): the third column meets a zero (styles leave v'_z alone)
-        if sub is None:
-            rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
-        else:
-            rc = [rot_sub[c][sub] for c in range(6)]
-        return jnp.stack([weight * (rc[k] * d0 + rc[3 + k] * d1) for k in range(3)], axis=-1)
-
     # The factors once per vertex and pose, written out as one (F, V) array: fused into the
     # rotation (or stacked with the offsets), every output component recomputes them and their
     # gathers (4 to 6 times): 88 -> 57 ms CPU time for 80 poses x 12,546 vertices, both
@@ -305,13 +395,70 @@ def style_offsets(
     sy = s_rad * (f[-1] if rect else one)
     h = style.hollow
     lx, ly = local[:, 0], local[:, 1]
-    dpos = rotate(row, t, sub, lx * sx - lx, ((ly - h) * sy + h) - ly)
-    # fresh gathers for the normals (one consumer per gather, see blend_skin)
-    row, t, sub = lax.optimization_barrier((row, t, sub))
     nx, ny = local_normal[:, 0], local_normal[:, 1]
     safe_sx = jnp.where(sx > 1e-6, sx, 1.0)
     safe_sy = jnp.where(sy > 1e-6, sy, 1.0)
-    return dpos, rotate(row, t, sub, nx / safe_sx - nx, ny / safe_sy - ny)
+    d = jnp.stack(
+        [
+            weight * (lx * sx - lx),
+            weight * (((ly - h) * sy + h) - ly),
+            weight * (nx / safe_sx - nx),
+            weight * (ny / safe_sy - ny),
+        ]
+    )
+    return row, t, sub, lax.optimization_barrier(d) if written else d
+
+
+def blend_skin_styled(
+    columns: jax.Array,
+    index: jax.Array,
+    weight: jax.Array,
+    frac: jax.Array | None,
+    vertices: jax.Array,
+    normals: jax.Array,
+    rotation: jax.Array,
+    dominant: jax.Array,
+    dominant_frac: jax.Array | None,
+    offset: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """:func:`blend_skin` plus the style offset as one more term of the same loops.
+
+    The offset ``R_d (d_x, d_y, 0)`` (:func:`style_scalars`) is added where the blend is
+    computed, so no (V, 3) offset is written and read again and there is no extra add pass;
+    the normal ``raw + R_d (d_nx, d_ny, 0)`` is normalized once (Eq. 5.13 blends the styled
+    spline-space normals before normalizing, as :func:`skin_exact` does).
+
+    Args:
+        columns, index, weight, frac, vertices, normals: as :func:`blend_skin`.
+        rotation: (6, R') the dominant spline's ``b_N``, ``b_B`` per row, or (12, R') with
+            their slopes to the next row in rows 6-11.
+        dominant: (V,) int32 row of ``rotation`` for each vertex.
+        dominant_frac: (V,) interpolation parameter along the slope, or None (6 rows).
+        offset: (4, V) ``w d`` of positions and normals from :func:`style_scalars`.
+
+    Returns:
+        Positions (V, 3) and unit normals (V, 3).
+    """
+
+    def add(p, dom, t, d0, d1):
+        def rc(c):
+            g = rotation[c][dom]
+            return g if t is None else g + t * rotation[6 + c][dom]
+
+        return [p[k] + rc(k) * d0 + rc(3 + k) * d1 for k in range(3)]
+
+    m = _coefficients(columns, index, weight, frac)
+    px, py, pz = add(_linear(m, vertices), dominant, dominant_frac, offset[0], offset[1])
+    pos = jnp.stack([px + m[9], py + m[10], pz + m[11]], axis=-1)
+    # fresh gathers for the normals (one consumer per gather, see blend_skin)
+    index, weight, frac, dominant, dominant_frac = lax.optimization_barrier(
+        (index, weight, frac, dominant, dominant_frac)
+    )
+    m = _coefficients(columns, index, weight, frac)
+    raw = jnp.stack(
+        add(_linear(m, normals), dominant, dominant_frac, offset[2], offset[3]), axis=-1
+    )
+    return pos, normalize_rows(lax.optimization_barrier(raw))
 
 
 def _blend2(s0, s1, w0, w1):
