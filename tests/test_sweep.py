@@ -114,6 +114,26 @@ def test_sharded_sweep_equals_unsharded(tmp_path):
     assert r["lbs_diff"] <= 1e-5
 
 
+KILLED_CLI = textwrap.dedent(
+    """
+    import os, sys
+    import jaxgfx.sweep
+    from jaxgfx.cli import main
+
+    kill_at, run, calls = int(sys.argv[1]), jaxgfx.sweep._run, []
+
+    def dying_run(*args):  # die like a killed process once `kill_at` chunks are done
+        calls.append(1)
+        if len(calls) > kill_at:
+            os.kill(os.getpid(), 9)
+        return run(*args)
+
+    jaxgfx.sweep._run = dying_run
+    sys.exit(main(sys.argv[2:]))
+    """
+)
+
+
 def test_sweep_killed_halfway_resumes(tmp_path):
     mesh_file = tmp_path / "box.ply"
     trimesh.creation.box((1.0, 0.6, 0.8)).export(mesh_file)
@@ -122,8 +142,13 @@ def test_sweep_killed_halfway_resumes(tmp_path):
         sys.executable, "-m", "jaxgfx.cli", "sweep", str(mesh_file),
         "--n", "8", "--chunk", "2", "--size", "20x16", "--out", str(out),
     ]  # fmt: skip
+    # the same command, killed (SIGKILL, no clean-up) as the third chunk starts
     killed = subprocess.run(
-        cmd, env=_env(1, JAXGFX_SWEEP_KILL_AFTER="2"), capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", KILLED_CLI, "2", *cmd[3:]],
+        env=_env(1),
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert killed.returncode == -9, killed.stderr[-2000:]
     chunks = sorted(p.name for p in (out / "chunks").glob("chunk_*.npz"))
