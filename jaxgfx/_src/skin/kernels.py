@@ -150,6 +150,7 @@ __all__ = [
     "normalize_rows",
     "style_offsets",
     "style_scalars",
+    "style_rotation_table",
     "style_subrow_table",
 ]
 
@@ -266,7 +267,6 @@ def style_offsets(
         Position offsets (V, 3) and normal offsets (V, 3), as the reference's (at the rounded
         ``coord`` with ``subrows``).
     """
-    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
     row, t, sub, d = style_scalars(
         style_table,
         style,
@@ -280,20 +280,38 @@ def style_offsets(
         subrows=subrows,
         written=False,
     )
-    rot_sub = None if subrows is None else style_subrow_table(style_table, subrows)
+    rotation = style_rotation_table(style_table, subrows)
+    dom, dom_t = (row, t) if sub is None else (sub, None)
 
-    def rotate(row, t, sub, d0, d1):
+    def rotate(dom, dom_t, d0, d1):
         # R(x) (d0, d1, 0): the third column meets a zero (styles leave v'_z alone)
-        if rot_sub is None:
-            rc = [cols[c][row] + t * cols[9 + c][row] for c in range(6)]
-        else:
-            rc = [rot_sub[c][sub] for c in range(6)]
+        rc = [_rotation_value(rotation, dom, dom_t, c) for c in range(6)]
         return jnp.stack([rc[k] * d0 + rc[3 + k] * d1 for k in range(3)], axis=-1)
 
-    dpos = rotate(row, t, sub, d[0], d[1])
+    dpos = rotate(dom, dom_t, d[0], d[1])
     # fresh gathers for the normals (one consumer per gather, see blend_skin)
-    row, t, sub = lax.optimization_barrier((row, t, sub))
-    return dpos, rotate(row, t, sub, d[2], d[3])
+    dom, dom_t = lax.optimization_barrier((dom, dom_t))
+    return dpos, rotate(dom, dom_t, d[2], d[3])
+
+
+def _rotation_value(rotation: jax.Array, dom: jax.Array, t: jax.Array | None, c: int):
+    """Value ``c`` (0-5) of the dominant rotation at rows ``dom``, lerped by ``t`` if given."""
+    g = rotation[c][dom]
+    return g if t is None else g + t * rotation[6 + c][dom]
+
+
+def style_rotation_table(style_table: jax.Array, subrows: int | None) -> jax.Array:
+    """The style rotation's first two columns as read per vertex, written out once.
+
+    Args:
+        style_table: (K * S, 20) style table from :func:`sample_spline_frames`.
+        subrows: None for (12, K S): ``b_N``, ``b_B`` per sample and, in rows 6-11, their
+            slopes to the next sample; Q for :func:`style_subrow_table`'s (6, K S Q).
+    """
+    if subrows is not None:
+        return style_subrow_table(style_table, subrows)
+    cols = style_table.T  # (20, R): 9 rotation values, their slopes, bend, twist
+    return lax.optimization_barrier(jnp.concatenate([cols[0:6], cols[9:15]]))
 
 
 def style_subrow_table(style_table: jax.Array, subrows: int) -> jax.Array:
@@ -441,11 +459,8 @@ def blend_skin_styled(
     """
 
     def add(p, dom, t, d0, d1):
-        def rc(c):
-            g = rotation[c][dom]
-            return g if t is None else g + t * rotation[6 + c][dom]
-
-        return [p[k] + rc(k) * d0 + rc(3 + k) * d1 for k in range(3)]
+        rc = [_rotation_value(rotation, dom, t, c) for c in range(6)]
+        return [p[k] + rc[k] * d0 + rc[3 + k] * d1 for k in range(3)]
 
     m = _coefficients(columns, index, weight, frac)
     px, py, pz = add(_linear(m, vertices), dominant, dominant_frac, offset[0], offset[1])

@@ -26,8 +26,8 @@ from jaxgfx._src.skin.kernels import (
     blend_skin,
     blend_skin_styled,
     normalize_rows,
+    style_rotation_table,
     style_scalars,
-    style_subrow_table,
 )
 from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
 from jaxgfx._src.skin.spline import frame_inverse, spline_frames
@@ -335,8 +335,7 @@ def skin_sampled_tables(
         drow, dt, _, d = style_scalars(
             style_table, style, samples, *dom, radial=radial, rect=rect, subrows=None
         )
-        cols = style_table.T
-        rot = lax.optimization_barrier(jnp.concatenate([cols[0:6], cols[9:15]]))
+        rot = style_rotation_table(style_table, None)
         return blend_skin_styled(
             skinning.T, index, weight, frac, rest, rest_normal, rot, drow, dt, d
         )
@@ -356,7 +355,7 @@ def skin_sampled_tables(
         style_table, style, samples, *dom, radial=radial, rect=rect, subrows=subrows
     )
     assert dom_sub is not None
-    rot = style_subrow_table(style_table, subrows)
+    rot = style_rotation_table(style_table, subrows)
     return blend_skin_styled(
         table, sub_index, weight, None, rest, rest_normal, rot, dom_sub, None, d
     )
