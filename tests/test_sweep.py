@@ -65,6 +65,16 @@ SHARDED = textwrap.dedent(
         float(np.abs(np.asarray(o) - np.asarray(r)).max())
         for k in range(6) for o, r in zip((sp[k], sn[k], cp[k], cn[k]), loop[k] * 2)
     )
+    # A user's jit(vmap(vmap(rasterize))) over posed meshes, no mesh set up: the 6 frames
+    # are split over the 4 devices (padded to 8); ids equal the single-frame jit's.
+    from jaxgfx.raster import rasterize
+    v, f, cam0 = mp.vertices, mp.faces, jax.tree_util.tree_map(lambda x: x[0], cams)
+    posed = np.stack([v, v * 1.1, v * 0.9]).reshape(3, 1, *v.shape).repeat(2, 1)
+    nested = jax.jit(jax.vmap(jax.vmap(lambda vv: rasterize(cam0, vv, f, vv).tri_id)))(posed)
+    single = jax.jit(lambda vv: rasterize(cam0, vv, f, vv).tri_id)
+    vmap_ids_equal = all(
+        np.array_equal(nested[i, j], single(posed[i, j])) for i in range(3) for j in range(2)
+    )
     fa, fb = np.isfinite(a["depth"]), np.isfinite(b["depth"])
     da = np.where(fa, a["depth"], 1.0)
     db = np.where(fa, b["depth"], 1.0)
@@ -78,6 +88,8 @@ SHARDED = textwrap.dedent(
         n=int(a["color"].shape[0]),
         lbs_shape=list(sp.shape), lbs_diff=lbs_diff,
         lbs_devices=len(lbs.mesh.devices.flat),
+        nested_devices=len(nested.sharding.device_set),
+        vmap_ids_equal=bool(vmap_ids_equal),
     )))
     """
 )
@@ -112,6 +124,9 @@ def test_sharded_sweep_equals_unsharded(tmp_path):
     # sharded_vmap over 4 devices (batch 6, padded) equals a loop over the characters
     assert r["lbs_shape"] == [6, 40, 3] and r["lbs_devices"] == 4
     assert r["lbs_diff"] <= 1e-5
+    # jit(vmap(rasterize)) splits its frames over the 4 devices by itself, same ids
+    assert r["nested_devices"] == 4
+    assert r["vmap_ids_equal"]
 
 
 KILLED_CLI = textwrap.dedent(
