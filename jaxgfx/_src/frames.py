@@ -41,7 +41,9 @@ def split_mesh(items: int) -> Mesh | None:
     one item, or when the caller is already inside a mesh context (a ``shard_map`` such as
     :func:`jaxgfx.sweep.sharded_renderer`'s, or a mesh the user set): there the batch has
     already been split, or the user placed it.  Only local devices: another process's
-    devices would turn one process's render into a collective program.
+    devices would turn one process's render into a collective program.  (Inside a user's
+    ``jit``, inputs committed to one device then meet this mesh's devices and JAX refuses
+    the program; such a caller sets its own mesh with ``jax.set_mesh``.)
     """
     devs = jax.local_devices()
     if len(devs) < 2 or items < 2 or not jax.sharding.get_abstract_mesh().empty:
