@@ -4,8 +4,8 @@
 :mod:`jaxgfx._src.frames`; :func:`jaxgfx.raster.rasterize` uses the same per-frame
 kernel with its shading), so a batch runs the single-frame kernel frame by frame
 inside one program instead of a vmapped while loop whose scatters and gathers
-become batched ones.  No step
-touches a whole frame per chunk.  :func:`visibility` can also take the setups of
+become batched ones.  No step touches a whole frame per chunk.
+:func:`visibility` can also take the setups of
 several frames laid one after the other (``frames=B``, one B*H*W z-buffer); on
 the 2-core CPU that measured 1.3x slower than frame by frame (cache), so
 ``visible_faces`` does not use it.
@@ -380,15 +380,6 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     return jax.lax.bitcast_convert_type(zbuf, jnp.float32), ibuf
 
 
-def _visibility_frame(static):
-    """Visibility of one frame (its face ids and 1/z, flat) for :func:`stacked_vmap`."""
-
-    def frame(cam, vertices, faces):
-        return _frame_visibility(cam, vertices, faces, *static)
-
-    return frame
-
-
 @functools.cache
 def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
     """The ``custom_vmap`` kernel for one static configuration (built once, cached).
@@ -397,7 +388,11 @@ def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: i
     cache, where one folded B*H*W z-buffer measured 1.3x slower for 32 bunny frames at
     512x384 (random scatters over 50 MB), and a vmapped setup ~5x slower.
     """
-    return stacked_vmap(_visibility_frame((cull_backfaces, block, chunk, tri_batch)))
+
+    def frame(cam, vertices, faces):  # (1/z, face id), each flat (H*W,)
+        return _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch)
+
+    return stacked_vmap(frame)
 
 
 def visible_faces(
