@@ -10,10 +10,13 @@ work:
    (Embree, every core), Mesa llvmpipe (OpenGL through a moderngl EGL context, depth read
    back inside the timing) and trimesh's ray caster on embreex (one thread).
 2. Batches: the bunny at 512x384 from 1, 8, 32 and 128 orbit cameras, frames per second of
-   ``jax.jit(jax.vmap(rasterize))``, a Python loop over the single-camera jit, the sharded
-   renderer (:func:`jaxgfx.sweep.sharded_renderer`, one host device per core; results come
-   back as NumPy) and the peers (open3d casts the whole batch in one call, llvmpipe draws and
-   reads back one frame after another).
+   ``jax.jit(jax.vmap(rasterize))`` (which splits its frames over the process's host devices
+   by itself, ``vmap_devices``), a Python loop over the single-camera jit in the same process,
+   the sharded renderer (:func:`jaxgfx.sweep.sharded_renderer`; results come back as NumPy)
+   and the peers (open3d casts the whole batch in one call, llvmpipe draws and reads back one
+   frame after another); with the process CPU time per frame of the vmap and loop rows.
+   The process has one host device per core (``jax_num_cpu_devices``, set before JAX starts,
+   as the ``jaxgfx`` CLI does; the machine line names the devices).
 
 Timing: compile excluded; the methods are timed in interleaved rounds (each round runs every
 method once) and the best round is reported, so load from other processes hits all alike.
@@ -98,15 +101,25 @@ def agreement(ours: np.ndarray, ref: np.ndarray) -> float:
     return float(np.mean((~a & ~b) | (both & close)))
 
 
-def best_rounds(methods: dict, rounds: int) -> tuple[dict, dict]:
-    """Runs every method once per round, interleaved; returns (best seconds, last outputs)."""
+def best_rounds(methods: dict, rounds: int, cpu: dict | None = None) -> tuple[dict, dict]:
+    """Runs every method once per round, interleaved; returns (best seconds, last outputs).
+
+    With ``cpu`` (a dict) it also gets each method's least process CPU time of a round
+    (``time.process_time``: every thread, so 2 busy cores count twice), which load from
+    other processes disturbs less than wall time.
+    """
     best = {k: float("inf") for k in methods}
+    if cpu is not None:
+        cpu.update({k: float("inf") for k in methods})
     outs: dict = {}
     for _ in range(rounds):
         for k, fn in methods.items():
-            t0 = time.perf_counter()
+            outs.pop(k, None)  # free the last round's outputs before timing the next
+            t0, c0 = time.perf_counter(), time.process_time()
             outs[k] = fn()
             best[k] = min(best[k], time.perf_counter() - t0)
+            if cpu is not None:
+                cpu[k] = min(cpu[k], time.process_time() - c0)
     return best, outs
 
 
@@ -196,12 +209,16 @@ def batch_table(args, peers_for, single) -> list[dict]:
             state = p.prepare(each)
             methods[p.name] = lambda p=p, state=state: p.run(state)
             p.run(state)
-        best, outs = best_rounds(methods, args.rounds)
+        cpu: dict = {}
+        best, outs = best_rounds(methods, args.rounds, cpu)
         depth = np.asarray(outs["vmap"].depth)
         loop_depth = np.stack([np.asarray(o.depth) for o in outs["loop"]])
         row = dict(cameras=b, size=f"{w}x{h}", devices=devs, compile_s=compile_s)
+        row["vmap_devices"] = len(outs["vmap"].depth.sharding.device_set)
         for k, t in best.items():
             row[f"{k}_fps"] = b / t
+        for k in ("vmap", "loop"):
+            row[f"{k}_cpu_ms"] = cpu[k] / b * 1e3  # process CPU time per frame
         row["vmap/loop"] = best["loop"] / best["vmap"]
         row["vmap_vs_loop_coverage"] = bool(
             np.array_equal(np.isfinite(depth), np.isfinite(loop_depth))
@@ -301,8 +318,9 @@ def main(argv=None) -> int:
     cols += [c for c in frame_rows[0] if c.endswith("_ms") and c != "jaxgfx_ms"]
     cols += [c for c in ("jaxgfx/llvmpipe",) if c in frame_rows[0]]
     cols += [c for c in frame_rows[0] if c.startswith("agree_")] + ["coverage"]
-    bcols = ["cameras", "size", "devices"] + [c for c in batch_rows[0] if c.endswith("_fps")]
-    bcols += ["vmap/loop", "vmap_vs_loop_coverage"]
+    bcols = ["cameras", "size", "devices", "vmap_devices"]
+    bcols += [c for c in batch_rows[0] if c.endswith("_fps")]
+    bcols += ["vmap/loop", "vmap_cpu_ms", "loop_cpu_ms", "vmap_vs_loop_coverage"]
     bcols += [c for c in batch_rows[0] if c.startswith("agree_")]
     skip_text = "".join(f"\n\nskipped peer {k}: {why}" for k, why in skipped.items())
     md = (

@@ -24,29 +24,38 @@ Design for large meshes (the thesis's terrain has ~700 k triangles at
   therefore drawn exactly once, with no holes and no double coverage.
 
 Everything is written for one camera; batch cameras (or posed vertices) with
-``jax.vmap``: the z-buffer kernel (:mod:`jaxgfx._src.zbuffer`) has a
-``custom_vmap`` rule that folds the batch into one work list over one B*H*W
-z-buffer, instead of vmapping the while loop and its scatters item by item.
+``jax.vmap``: the frame kernel has a ``custom_vmap`` rule
+(:func:`jaxgfx._src.frames.stacked_vmap`) that folds the batch into a stack of
+frames rendered one after the other (visibility and shading, each frame's
+temporaries sized for one frame) instead of vmapping the while loop, its
+scatters and every per-pixel buffer.  With several host devices
+(``jax.config.update("jax_num_cpu_devices", N)`` or ``XLA_FLAGS=
+--xla_force_host_platform_device_count=N`` before JAX starts; the ``jaxgfx``
+CLI sets one per core) the stack is split over them, so a
+``jax.jit(jax.vmap(rasterize))`` batch runs on every core with no mesh set up.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.frames import stacked_vmap
 from jaxgfx._src.zbuffer import (
     NO_TRI,
+    TRI_BATCH,
     ClippedTriangles,
     TriangleSetup,
     _chunk_fragments,
+    _frame_visibility,
     clip_near,
     corners_soa,
     triangle_setup,
     visibility,
-    visible_faces,
 )
 from jaxgfx.camera import Camera, screen_to_camera, validate_camera, world_to_camera
 
@@ -320,16 +329,61 @@ def rasterize(
             jnp.full((h, w), -1, jnp.int32),
             jnp.zeros((h, w, 3), jnp.float32),
         )
+    return _rasterize((bool(cull_backfaces), block, chunk), cam, vertices, faces, attributes)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _rasterize(static, cam, vertices, faces, attributes):
+    """:func:`rasterize` of checked arrays: the whole frame as one stack of one frame.
+
+    Under ``jax.vmap`` the ``custom_vmap`` rule of :func:`_raster_kernel` folds the batch
+    into the stack, whose frames are rendered (visibility AND shading) one after the other,
+    split over this process's devices when it has several: a vmapped shading pass over the
+    whole batch had every per-pixel temporary multiplied by the batch: shading cost ~20 ms
+    CPU per frame for 32 bunny frames at 512x384, 8-11 ms frame by frame (visibility
+    28-35 ms; session 11, load 5-7).  Gradients come from :func:`_rasterize_jvp`.
+    """
+    one = jax.tree_util.tree_map(lambda x: x[None], (cam, vertices, faces, attributes))
+    out = _raster_kernel(*static)(*one)
+    return RasterOutput(*(x[0] for x in out))
+
+
+@_rasterize.defjvp
+def _rasterize_jvp(static, primals, tangents):
     # Which face a pixel sees is piecewise constant in the inputs: its derivative is zero
-    # wherever it exists.  Cutting the gradient here says so, and keeps the z-buffer's
-    # while_loop and scatters out of JVPs/VJPs (reverse mode cannot go through a while_loop).
-    # The z-buffer sees a stack of one frame; under jax.vmap its custom_vmap rule folds
-    # the batch into the stack (one work list, one B*H*W z-buffer, same code).
-    cam_c, vertices_c = jax.lax.stop_gradient((cam, vertices))
-    one = jax.tree_util.tree_map(lambda x: x[None], (cam_c, vertices_c, faces))
-    inv_depth, face_id = visible_faces(
-        *one, cull_backfaces=cull_backfaces, block=block, chunk=chunk
-    )
+    # wherever it exists.  So the frame is rendered as without gradients, and the tangents
+    # come from the differentiable part alone: each pixel's ray intersected with its
+    # (now fixed) face.  The z-buffer's while_loop and scatters stay out of JVPs/VJPs
+    # (reverse mode cannot go through a while_loop).
+    cam, vertices, faces, attributes = primals
+    t_cam, t_vertices, _, t_attributes = tangents
+    out = _rasterize(static, *primals)
+    hit = out.tri_id.reshape(-1) >= 0
+    face_id = jnp.where(hit, out.tri_id.reshape(-1), _NO_TRI)
+    inv_depth = jnp.where(hit, 1.0 / out.depth.reshape(-1), 0.0)  # only the grazing fallback
+
+    def shade(cam, vertices, attributes):
+        return RasterOutput(*_shade(cam, vertices, faces, attributes, inv_depth, face_id))
+
+    _, t_out = jax.jvp(shade, (cam, vertices, attributes), (t_cam, t_vertices, t_attributes))
+    return out, t_out
+
+
+@functools.cache
+def _raster_kernel(cull_backfaces: bool, block: int, chunk: int):
+    """``custom_vmap`` kernel over stacks of (camera, vertices, faces, attributes) frames."""
+
+    def frame(cam, vertices, faces, attributes):
+        inv_depth, face_id = _frame_visibility(
+            cam, vertices, faces, cull_backfaces, block, chunk, TRI_BATCH
+        )
+        return _shade(cam, vertices, faces, attributes, inv_depth, face_id)
+
+    return stacked_vmap(frame)
+
+
+def _shade(cam, vertices, faces, attributes, inv_depth, face_id):
+    """Colour, depth, ids and barycentrics of one frame from its visibility (flat H*W)."""
     pv = world_to_camera(cam, vertices)  # (V, 3)
     h, w = cam.height, cam.width
     stripes = _stripes(h, w)
@@ -348,18 +402,18 @@ def rasterize(
         return interpolate(attributes, faces, tri_id, bary), depth, tri_id, bary
 
     if stripes == 1:
-        return RasterOutput(*shade(0, inv_depth[0], face_id[0]))
+        return shade(0, inv_depth, face_id)
     # Large images are shaded a stripe of rows at a time: the per-pixel temporaries of
     # a whole 1024x768 frame (~40 MB) come fresh from the OS every call (page faults).
     out = jax.lax.map(
         lambda a: shade(*a),
         (
             jnp.arange(stripes, dtype=jnp.int32),
-            inv_depth[0].reshape(stripes, -1),
-            face_id[0].reshape(stripes, -1),
+            inv_depth.reshape(stripes, -1),
+            face_id.reshape(stripes, -1),
         ),
     )
-    return RasterOutput(*(x.reshape(h, w, *x.shape[3:]) for x in out))
+    return tuple(x.reshape(h, w, *x.shape[3:]) for x in out)
 
 
 def _stripes(h: int, w: int, pixels: int = 1 << 18) -> int:

@@ -50,6 +50,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxgfx._src.checks import check_int
+from jaxgfx._src.frames import batch_mesh
 from jaxgfx.io import atomic_write, save_json
 
 __all__ = [
@@ -77,10 +78,7 @@ def batch_size(params) -> int:
 
 def device_mesh(devices=None) -> Mesh:
     """1-D mesh over ``devices`` (default: all devices of all processes)."""
-    devs = np.asarray(jax.devices() if devices is None else list(devices))
-    if devs.size == 0:
-        raise ValueError("device_mesh: no devices")
-    return Mesh(devs, ("batch",))
+    return batch_mesh(devices)
 
 
 def _slice(params, start: int, stop: int, pad_to: int):

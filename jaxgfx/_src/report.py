@@ -22,7 +22,7 @@ __all__ = ["machine", "time_jitted", "markdown_table", "write_table"]
 
 
 def machine() -> str:
-    """One line naming the CPU model, core count, current load, JAX version and devices."""
+    """One line: CPU model, core count, current load, JAX version, devices (count x kind)."""
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as fh:
@@ -33,7 +33,8 @@ def machine() -> str:
     except OSError:
         pass
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    devs = ", ".join(sorted({d.device_kind for d in jax.devices()}))
+    kinds = [d.device_kind for d in jax.devices()]
+    devs = ", ".join(f"{kinds.count(k)} x {k}" for k in sorted(set(kinds)))
     return f"{cpu}, {os.cpu_count()} cores (load {load:.1f}); jax {jax.__version__} on {devs}"
 
 

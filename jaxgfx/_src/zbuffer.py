@@ -1,10 +1,11 @@
 """The z-buffer kernel of :mod:`jaxgfx.raster`: clipping, triangle setup, visibility.
 
-Everything here works on a *stack* of frames: :func:`visible_faces` is what
-``jax.vmap(jaxgfx.raster.rasterize)`` reaches through ``custom_vmap``, so a batch
-runs the single-frame kernel frame by frame inside one program instead of a
-vmapped while loop whose scatters and gathers become batched ones.  No step
-touches a whole frame per chunk.  :func:`visibility` can also take the setups of
+:func:`visible_faces` works on a *stack* of frames (``custom_vmap``, see
+:mod:`jaxgfx._src.frames`; :func:`jaxgfx.raster.rasterize` uses the same per-frame
+kernel with its shading), so a batch runs the single-frame kernel frame by frame
+inside one program instead of a vmapped while loop whose scatters and gathers
+become batched ones.  No step touches a whole frame per chunk.
+:func:`visibility` can also take the setups of
 several frames laid one after the other (``frames=B``, one B*H*W z-buffer); on
 the 2-core CPU that measured 1.3x slower than frame by frame (cache), so
 ``visible_faces`` does not use it.
@@ -24,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.frames import stacked_vmap
 from jaxgfx.camera import Camera, focal_lengths, world_to_camera
 
 __all__ = [
@@ -378,79 +380,19 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     return jax.lax.bitcast_convert_type(zbuf, jnp.float32), ibuf
 
 
-def _lead(tree) -> int:
-    return int(jax.tree_util.tree_leaves(tree)[0].shape[0])
-
-
-def _frames_kernel(cams, vertices, faces, *, cull_backfaces, block, chunk, tri_batch):
-    """Visibility of a stack of frames: every argument has a leading axis of 1 (shared) or B."""
-    sizes = {_lead(cams), vertices.shape[0], faces.shape[0]}
-    frames = max(sizes)
-    if not sizes <= {1, frames}:
-        raise ValueError(f"leading axes must be 1 or one common size, got {sorted(sizes)}")
-
-    def frame_args(k):
-        picks = [(a, 0 if _lead(a) == 1 else k) for a in (cams, vertices, faces)]
-        return [jax.tree_util.tree_map(lambda x, i=i: x[i], a) for a, i in picks]
-
-    cam0 = jax.tree_util.tree_map(lambda x: x[0], cams)
-
-    # Frame by frame inside one program: each frame's z-buffer (H*W int32 twice) stays
-    # in cache, where one folded B*H*W z-buffer measured 1.3x slower for 32 bunny
-    # frames at 512x384 (random scatters over 50 MB), and a vmapped setup ~5x slower.
-    def one(k):
-        cam, v, f = frame_args(k)
-        return _frame_visibility(cam, v, f, cull_backfaces, block, chunk, tri_batch)
-
-    inv_depth, face_id = jax.lax.map(one, jnp.arange(frames, dtype=jnp.int32))
-    npix = cam0.width * cam0.height
-    return inv_depth.reshape(frames, npix), face_id.reshape(frames, npix)
-
-
 @functools.cache
 def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
-    """The ``custom_vmap`` kernel for one static configuration (built once, cached)."""
-    static = dict(cull_backfaces=cull_backfaces, block=block, chunk=chunk, tri_batch=tri_batch)
+    """The ``custom_vmap`` kernel for one static configuration (built once, cached).
 
-    @jax.custom_batching.custom_vmap
-    def kernel(cams, vertices, faces):
-        return _frames_kernel(cams, vertices, faces, **static)
+    Frame by frame inside one program: each frame's z-buffer (H*W int32 twice) stays in
+    cache, where one folded B*H*W z-buffer measured 1.3x slower for 32 bunny frames at
+    512x384 (random scatters over 50 MB), and a vmapped setup ~5x slower.
+    """
 
-    @kernel.def_vmap
-    def fold(axis_size, in_batched, cams, vertices, faces):
-        # A vmap over a stack of frames: fold its axis into the stack, (A, B) -> (A*B),
-        # so nested vmaps still give one work list and one z-buffer.  An argument the
-        # vmap does not touch and that is shared (leading 1) stays shared.
-        args = (cams, vertices, faces)
+    def frame(cam, vertices, faces):  # (1/z, face id), each flat (H*W,)
+        return _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch)
 
-        def inner(x, batched):
-            return x.shape[1] if batched else x.shape[0]
-
-        leads = [
-            inner(x, bt)
-            for a, b in zip(args, in_batched, strict=True)
-            for x, bt in zip(
-                jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True
-            )
-        ]
-        frames = max(leads)
-
-        def widen(x, batched):
-            if not batched:
-                x = jnp.broadcast_to(x[None], (axis_size, *x.shape))
-            x = jnp.broadcast_to(x, (axis_size, frames, *x.shape[2:]))
-            return x.reshape(axis_size * frames, *x.shape[2:])
-
-        folded = []
-        for a, b in zip(args, in_batched, strict=True):
-            flags = jax.tree_util.tree_leaves(b)
-            shared = not any(flags) and all(x.shape[0] == 1 for x in jax.tree_util.tree_leaves(a))
-            folded.append(a if shared else jax.tree_util.tree_map(widen, a, b))
-        inv_depth, face_id = kernel(*folded)
-        shape = (axis_size, frames, -1)
-        return (inv_depth.reshape(shape), face_id.reshape(shape)), (True, True)
-
-    return kernel
+    return stacked_vmap(frame)
 
 
 def visible_faces(
@@ -465,8 +407,9 @@ def visible_faces(
 ) -> tuple[jax.Array, jax.Array]:
     """Nearest face per pixel for a stack of frames (no gradients flow through it).
 
-    Under ``jax.vmap`` the new axis is folded into the stack (``custom_vmap``), so a
-    batch of cameras or posed meshes is one work list over one B*H*W z-buffer.
+    Under ``jax.vmap`` the new axis is folded into the stack (``custom_vmap``), and the
+    frames are rendered one after the other, split over this process's devices when it
+    has several (:func:`jaxgfx._src.frames.map_frames`).
 
     Args:
         cams: cameras with a leading axis of 1 (shared) or B; static resolution.
