@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.zbuffer import (
+    CHUNK,
     NO_TRI,
     ClippedTriangles,
     TriangleSetup,
@@ -116,7 +117,7 @@ def validate_mesh(vertices, faces, attributes=None) -> None:
 
 
 def coverage_count(
-    cam: Camera, vertices: jax.Array, faces: jax.Array, *, block: int = 2, chunk: int = 32768
+    cam: Camera, vertices: jax.Array, faces: jax.Array, *, block: int = 2, chunk: int = CHUNK
 ) -> jax.Array:
     """How many faces cover each pixel centre, ignoring depth (overdraw).
 
@@ -267,7 +268,7 @@ def rasterize(
     *,
     cull_backfaces: bool = False,
     block: int = 2,
-    chunk: int = 32768,
+    chunk: int = CHUNK,
 ) -> RasterOutput:
     """Renders a triangle mesh with a z-buffer.
 
