@@ -297,9 +297,10 @@ def rasterize(
             core (``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` before JAX
             starts); the result is bit-identical to one device (see
             :mod:`jaxgfx._src.zsplit`).  Opt-in, not automatic, because it makes the call
-            an SPMD program over those devices; under ``jax.vmap`` it is ignored (the batch
-            keeps its frames whole, and a sharded sweep already gives each device its own
-            frames), so a batch is never split twice.
+            an SPMD program over those devices.  Under ``jax.vmap`` the z-buffer split is
+            dropped (``custom_vmap``: the batch's frames are z-buffered whole, as without
+            ``devices``, so a batch that is itself split over devices is not split
+            twice); only the shading still gives each device its rows of every frame.
 
     Returns:
         :class:`RasterOutput` with colour (H, W, C), depth (H, W) (camera z,

@@ -13,6 +13,24 @@ Results do not depend on how the work is cut into chunks or frames: a pixel
 keeps the largest 1/z (compared as int32 bit patterns, exact) and, among exact
 ties, the smallest face index.  So a frame rendered alone and the same frame
 inside a batch see the same faces.
+
+Where one frame's time goes (session 11; process CPU time, 2-core box under load):
+before, a chunk of 131 k fragment slots cost 5.9 ms to generate (45 ns a slot) and
+1.1 ms to z-test (3 scatters, 2 gathers).  The generation was scalar code: its loop
+fusion was flattened with ``reshape(-1)`` and read a (22, K) row gather laid out item
+by item; as (block*block, K) planes over contiguous rows the same arithmetic takes
+~0.35 ms.  Then, for the 718 k-face terrain at 1024x768, the setup of the second
+clipped triangle of every face (empty unless a face crosses the near plane; now behind
+a ``lax.cond``), ``jnp.cumsum`` (a reduce-window; now an associative scan) and chunks
+left partly filled at each face batch's end (66 chunk passes for 29 chunks of work;
+now 2^16 faces per batch and 2^14 items per chunk) cost ~100 ms together.  Now
+(load ~8): terrain visibility ~172 ms (setup ~60, fragment loop ~108) + shading ~40;
+bunny 512x384 ~12 + ~5.  Tried and dropped: one int64 (1/z bits, face id) key and a
+single scatter-max per fragment (the scatter is as fast, but the int64 arithmetic does
+not vectorise: fragment generation 4x slower); an item -> triangle table (scatter and
+running max) instead of the binary search (neutral: XLA turned the per-chunk
+``lax.cond`` choosing between them into a select that ran both); (h, w) planes in the
+resolve and 9 one-dimensional corner gathers in the setup (no change).
 """
 
 from __future__ import annotations
