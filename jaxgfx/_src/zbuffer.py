@@ -376,11 +376,18 @@ def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam=None, half=N
     """
     if p_cam is None:
         p_cam = world_to_camera(cam, vertices).T
-    halves = _clip_halves(p_cam[:, faces.T], cam.near)
-    if half is None:
-        tris = ClippedTriangles(*(jnp.concatenate(x, axis=-1) for x in zip(*halves)))
+    corners = p_cam[:, faces.T]
+    if half == "front":  # no face crosses the plane: no clipping arithmetic
+        n_in = (corners[2] >= cam.near).sum(0)
+        source = jnp.arange(faces.shape[0], dtype=jnp.int32)
+        tris = ClippedTriangles(corners, n_in == 3, source)
+        half = 0
     else:
-        tris = halves[half]
+        halves = _clip_halves(corners, cam.near)
+        if half is None:
+            tris = ClippedTriangles(*(jnp.concatenate(x, axis=-1) for x in zip(*halves)))
+        else:
+            tris = halves[half]
     if cull_backfaces:
         tri_w = vertices[faces]
         n = jnp.cross(tri_w[:, 1] - tri_w[:, 0], tri_w[:, 2] - tri_w[:, 0])
@@ -400,9 +407,10 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     Setting up and z-buffering the faces in batches bounds the temporaries, and the
     result is the same: the z-buffer keeps the largest 1/z and the smallest face id
     among exact ties whatever the order.  For the same reason each batch draws the first
-    triangle of every face, then (``lax.cond``) the second triangles that near-plane
-    clipping makes, only if a face of the batch crosses the near plane: otherwise that
-    half of the slots is all empty, and setting it up cost ~1/3 of a terrain frame.
+    triangle of every face, then the second triangles that near-plane clipping makes only
+    if a face of the batch has two corners in front of the plane: otherwise that half of
+    the slots is all empty, and setting it up cost ~1/3 of a terrain frame.  A batch with
+    no face crossing the plane skips the clipping arithmetic too (terrain 0.87-0.92x CPU).
     """
     n = faces.shape[0]
     batches = max(1, -(-n // tri_batch))
@@ -415,9 +423,19 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     def body(b, bufs):
         first = jnp.minimum(b * size, n - size)
         part = jax.lax.dynamic_slice_in_dim(faces, first, size)
+        n_in = (p_cam[2][part] >= cam.near).sum(-1)
+
+        def setup_of(half):
+            # Half 0 without clipping arithmetic where no face crosses the plane.
+            front = ~jnp.any((n_in > 0) & (n_in < 3))
+            kind = jnp.where(half == 1, 2, jnp.where(front, 1, 0))
+            args = (cam, vertices, part, cull_backfaces, block, p_cam)
+            return jax.lax.switch(
+                kind, [functools.partial(_frame_setup, *args, h) for h in (0, "front", 1)]
+            )
 
         def draw(half, bufs):
-            setup = _frame_setup(cam, vertices, part, cull_backfaces, block, p_cam, half)
+            setup = setup_of(half)
             setup = TriangleSetup(
                 setup.packed,
                 setup.ints.at[5].add(first),
@@ -425,9 +443,9 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
             )
             return _zbuffer(cam, setup, block, chunk, 1, *bufs)
 
-        bufs = draw(0, bufs)
-        n_in = (p_cam[2][part] >= cam.near).sum(-1)
-        return jax.lax.cond(jnp.any(n_in == 2), functools.partial(draw, 1), lambda x: x, bufs)
+        # One z-buffer loop (traced once: compile time) over 1 or 2 halves.
+        halves = 1 + jnp.any(n_in == 2).astype(jnp.int32)
+        return jax.lax.fori_loop(0, halves, draw, bufs)
 
     npix = cam.width * cam.height
     bufs = (jnp.zeros((npix,), jnp.int32), jnp.full((npix,), NO_TRI, jnp.int32))
