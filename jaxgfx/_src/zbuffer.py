@@ -20,8 +20,8 @@ before, a chunk of 131 k fragment slots cost 5.9 ms to generate (45 ns a slot) a
 fusion was flattened with ``reshape(-1)`` and read a (22, K) row gather laid out item
 by item; as (block*block, K) planes over contiguous rows the same arithmetic takes
 ~0.35 ms.  Then, for the 718 k-face terrain at 1024x768, the setup of the second
-clipped triangle of every face (empty unless a face crosses the near plane; now behind
-a ``lax.cond``), ``jnp.cumsum`` (a reduce-window; now an associative scan) and chunks
+clipped triangle of every face (empty unless a face crosses the near plane; now only for
+batches that cross it), ``jnp.cumsum`` (a reduce-window; now an associative scan) and chunks
 left partly filled at each face batch's end (66 chunk passes for 29 chunks of work;
 now 2^16 faces per batch and 2^14 items per chunk) cost ~100 ms together.  Now
 (load ~8): terrain visibility ~172 ms (setup ~60, fragment loop ~108) + shading ~40;
