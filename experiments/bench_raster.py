@@ -6,7 +6,9 @@ work:
 
 1. One frame: the Stanford bunny (69 k triangles, from ../shared/data, or an icosphere when
    the data is absent) and a procedural ~718 k-triangle heightfield (thesis Table 3.1 scale),
-   at 512x384 and 1024x768: ``jax.jit(rasterize)`` against open3d's ``RaycastingScene``
+   at 512x384 and 1024x768: ``jax.jit(rasterize)`` on one device (one core) and, with
+   several host devices, ``rasterize(devices=D)`` (the frame's faces split over all D;
+   ``split_equal``: bit-identical to one device) against open3d's ``RaycastingScene``
    (Embree, every core), Mesa llvmpipe (OpenGL through a moderngl EGL context, depth read
    back inside the timing) and trimesh's ray caster on embreex (one thread).
 2. Batches: the bunny at 512x384 from 1, 8, 32 and 128 orbit cameras, frames per second of
@@ -34,6 +36,7 @@ images (``*_depth.png``: jaxgfx; ``*_llvmpipe_depth.png``: the GL peer, for a lo
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import time
 from pathlib import Path
@@ -123,7 +126,8 @@ def best_rounds(methods: dict, rounds: int, cpu: dict | None = None) -> tuple[di
     return best, outs
 
 
-def one_frame_table(args, peers_for, raster) -> list[dict]:
+def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:
+    """``split``: ``rasterize`` with the frame's faces over every host device (or None)."""
     from jaxgfx.camera import look_at
     from jaxgfx.compose import depth_image
     from jaxgfx.io import save_png
@@ -143,6 +147,11 @@ def one_frame_table(args, peers_for, raster) -> list[dict]:
             methods = {
                 "jaxgfx": lambda cam=cam, v=v, f=f: jax.block_until_ready(raster(cam, v, f, v))
             }
+            if split is not None:  # the same frame, its faces split over every host device
+                jax.block_until_ready(split(cam, v, f, v))
+                methods["jaxgfx_split"] = lambda cam=cam, v=v, f=f: jax.block_until_ready(
+                    split(cam, v, f, v)
+                )
             for p in peers:
                 methods[p.name] = lambda p=p, s=states[p.name]: p.run(s)
                 p.run(states[p.name])  # warm-up (first GL draw compiles shaders, ...)
@@ -159,8 +168,16 @@ def one_frame_table(args, peers_for, raster) -> list[dict]:
             for p in peers:
                 row[f"{p.name}_ms"] = best[p.name] * 1e3
                 row[f"agree_{p.name}"] = f"{agreement(depth, outs[p.name][0]) * 100:.3f}%"
+            if split is not None:
+                row["jaxgfx_split_ms"] = best["jaxgfx_split"] * 1e3
+                row["split_equal"] = all(
+                    np.array_equal(np.asarray(a), np.asarray(b))
+                    for a, b in zip(outs["jaxgfx"], outs["jaxgfx_split"])
+                )
             if "llvmpipe" in best:
                 row["jaxgfx/llvmpipe"] = best["jaxgfx"] / best["llvmpipe"]
+                if split is not None:
+                    row["split/llvmpipe"] = best["jaxgfx_split"] / best["llvmpipe"]
             rows.append(row)
             if args.out:
                 save_png(Path(args.out) / f"{tag}_{w}x{h}_depth.png", depth_image(depth))
@@ -303,7 +320,12 @@ def main(argv=None) -> int:
         return peers
 
     raster = jax.jit(rasterize)  # one jit for both tables: equal shapes compile once
-    frame_rows = one_frame_table(args, peers_for, raster)
+    ndev = len(jax.devices())
+    # Not in --quick (CI runs it): one more compile for a column a quick run cannot judge.
+    split = None
+    if ndev > 1 and not args.quick:
+        split = jax.jit(functools.partial(rasterize, devices=ndev))
+    frame_rows = one_frame_table(args, peers_for, raster, split)
     batch_rows = batch_table(args, peers_for, raster)
     meta = dict(
         machine=machine(),
@@ -316,7 +338,7 @@ def main(argv=None) -> int:
     )
     cols = ["mesh", "triangles", "size", "compile_s", "jaxgfx_ms"]
     cols += [c for c in frame_rows[0] if c.endswith("_ms") and c != "jaxgfx_ms"]
-    cols += [c for c in ("jaxgfx/llvmpipe",) if c in frame_rows[0]]
+    cols += [c for c in ("jaxgfx/llvmpipe", "split/llvmpipe", "split_equal") if c in frame_rows[0]]
     cols += [c for c in frame_rows[0] if c.startswith("agree_")] + ["coverage"]
     bcols = ["cameras", "size", "devices", "vmap_devices"]
     bcols += [c for c in batch_rows[0] if c.endswith("_fps")]

@@ -38,14 +38,17 @@ CLI sets one per core) the stack is split over them, so a
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, PartitionSpec
 
 from jaxgfx._src.frames import stacked_vmap
 from jaxgfx._src.zbuffer import (
+    CHUNK,
     NO_TRI,
     TRI_BATCH,
     ClippedTriangles,
@@ -57,6 +60,7 @@ from jaxgfx._src.zbuffer import (
     triangle_setup,
     visibility,
 )
+from jaxgfx._src.zsplit import resolve_devices, split_visible_faces
 from jaxgfx.camera import Camera, screen_to_camera, validate_camera, world_to_camera
 
 __all__ = [
@@ -125,7 +129,7 @@ def validate_mesh(vertices, faces, attributes=None) -> None:
 
 
 def coverage_count(
-    cam: Camera, vertices: jax.Array, faces: jax.Array, *, block: int = 2, chunk: int = 32768
+    cam: Camera, vertices: jax.Array, faces: jax.Array, *, block: int = 2, chunk: int = CHUNK
 ) -> jax.Array:
     """How many faces cover each pixel centre, ignoring depth (overdraw).
 
@@ -276,7 +280,8 @@ def rasterize(
     *,
     cull_backfaces: bool = False,
     block: int = 2,
-    chunk: int = 32768,
+    chunk: int = CHUNK,
+    devices: int | Sequence[jax.Device] | None = None,
 ) -> RasterOutput:
     """Renders a triangle mesh with a z-buffer.
 
@@ -293,6 +298,16 @@ def rasterize(
         block: tile edge in pixels for the work list (static).
         chunk: work items (tiles) per z-buffer pass (static); bounds memory at
             ``chunk * block**2`` fragments.
+        devices: split this ONE frame's faces over several devices (static): an int D
+            (the first D of ``jax.devices()``) or a sequence of devices; ``None`` or 1: one
+            device.  On a CPU this draws a frame on every core, given one host device per
+            core (``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` before JAX
+            starts); the result is bit-identical to one device (see
+            :mod:`jaxgfx._src.zsplit`).  Opt-in, not automatic, because it makes the call
+            an SPMD program over those devices.  Under ``jax.vmap`` the z-buffer split is
+            dropped (``custom_vmap``: the batch's frames are z-buffered whole, as without
+            ``devices``, so a batch that is itself split over devices is not split
+            twice); only the shading still gives each device its rows of every frame.
 
     Returns:
         :class:`RasterOutput` with colour (H, W, C), depth (H, W) (camera z,
@@ -316,6 +331,7 @@ def rasterize(
         raise ValueError(f"block must be a positive int, got {block!r}")
     if not isinstance(chunk, int) or chunk <= 0:
         raise ValueError(f"chunk must be a positive int, got {chunk!r}")
+    split = None if devices is None else resolve_devices(devices)
     validate_camera(cam)
     validate_mesh(vertices, faces, attributes)
     vertices = jnp.asarray(vertices, jnp.float32)
@@ -329,7 +345,10 @@ def rasterize(
             jnp.full((h, w), -1, jnp.int32),
             jnp.zeros((h, w, 3), jnp.float32),
         )
-    return _rasterize((bool(cull_backfaces), block, chunk), cam, vertices, faces, attributes)
+    static = (bool(cull_backfaces), block, chunk)
+    if split is not None and len(split) > 1:
+        return _rasterize_split(static, split, cam, vertices, faces, attributes)
+    return _rasterize(static, cam, vertices, faces, attributes)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -385,7 +404,41 @@ def _raster_kernel(cull_backfaces: bool, block: int, chunk: int):
 def _shade(cam, vertices, faces, attributes, inv_depth, face_id):
     """Colour, depth, ids and barycentrics of one frame from its visibility (flat H*W)."""
     pv = world_to_camera(cam, vertices)  # (V, 3)
-    h, w = cam.height, cam.width
+    return _shade_rows(cam, pv, faces, attributes, inv_depth, face_id, 0, cam.height)
+
+
+def _rasterize_split(static, split, cam, vertices, faces, attributes):
+    """``rasterize(devices=D)``: one frame's faces z-buffered on D devices, rows shaded per device.
+
+    The visible faces are found without gradients (``stop_gradient``: which face a pixel
+    sees is piecewise constant), the shading is differentiable as in :func:`_rasterize`.
+    """
+    cull_backfaces, block, chunk = static
+    cam_c, vertices_c = jax.lax.stop_gradient((cam, vertices))
+    inv_depth, face_id = split_visible_faces(
+        cam_c,
+        vertices_c,
+        faces,
+        split,
+        cull_backfaces=cull_backfaces,
+        block=block,
+        chunk=chunk,
+        tri_batch=TRI_BATCH,
+    )
+    pv = world_to_camera(cam, vertices)  # (V, 3)
+    args = (cam, pv, faces, attributes, inv_depth[0], face_id[0])
+    if cam.height % len(split) == 0:
+        return RasterOutput(*_split_shade_fn(split)(*args))
+    return RasterOutput(*_shade_rows(*args, 0, cam.height))
+
+
+def _shade_rows(cam, pv, faces, attributes, inv, fid, row0, h: int):
+    """Colour, depth, face id and barycentrics of image rows ``row0 .. row0 + h`` (static h).
+
+    ``pv``: (V, 3) camera-space vertices; ``inv``, ``fid``: the rows' (h * W,) 1/z and
+    visible face from the z-buffer.
+    """
+    w = cam.width
     stripes = _stripes(h, w)
     rows = h // stripes
 
@@ -398,22 +451,46 @@ def _shade(cam, vertices, faces, attributes, inv_depth, face_id):
         # depend on how a sweep splits frames over devices (1-D gathers fused into it
         # gave depths 1.5e-6 apart).
         g = jnp.take(pv, fv.reshape(-1), axis=0, mode="clip").reshape(-1, 9).T
-        depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, i * rows, rows)
+        depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, row0 + i * rows, rows)
         return interpolate(attributes, faces, tri_id, bary), depth, tri_id, bary
 
     if stripes == 1:
-        return shade(0, inv_depth, face_id)
+        return shade(0, inv, fid)
     # Large images are shaded a stripe of rows at a time: the per-pixel temporaries of
     # a whole 1024x768 frame (~40 MB) come fresh from the OS every call (page faults).
     out = jax.lax.map(
         lambda a: shade(*a),
-        (
-            jnp.arange(stripes, dtype=jnp.int32),
-            inv_depth.reshape(stripes, -1),
-            face_id.reshape(stripes, -1),
-        ),
+        (jnp.arange(stripes, dtype=jnp.int32), inv.reshape(stripes, -1), fid.reshape(stripes, -1)),
     )
     return tuple(x.reshape(h, w, *x.shape[3:]) for x in out)
+
+
+@functools.cache
+def _split_shade_fn(devices: tuple):
+    """Shading of a frame split by rows over ``devices`` (``rasterize(devices=)``).
+
+    Each device shades its H/D rows (the z-buffer result is on every device after the
+    merge); the result is sharded by rows.  Plain ``shard_map`` (differentiable); under
+    ``jax.vmap`` each device shades its rows of every frame.
+    """
+    d = len(devices)
+    axis = "rows"
+
+    def local(cam, pv, faces, attributes, inv, fid):
+        r = cam.height // d
+        start = jax.lax.axis_index(axis) * r
+        part = [
+            jax.lax.dynamic_slice_in_dim(x, start * cam.width, r * cam.width) for x in (inv, fid)
+        ]
+        return _shade_rows(cam, pv, faces, attributes, *part, start, r)
+
+    return jax.shard_map(
+        local,
+        mesh=Mesh(np.asarray(devices), (axis,)),
+        in_specs=(PartitionSpec(),) * 6,
+        out_specs=(PartitionSpec(axis),) * 4,
+        check_vma=False,
+    )
 
 
 def _stripes(h: int, w: int, pixels: int = 1 << 18) -> int:

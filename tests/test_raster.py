@@ -346,6 +346,16 @@ def test_bad_mesh_input(vertices, faces, match):
         rasterize(cam, vertices, np.asarray(faces))
 
 
+@pytest.mark.parametrize("devices", [0, 10**6, True, "cpu", [], ["cpu"]])
+def test_bad_devices(devices):
+    # Checked before tracing; the split itself is tested on 4 forced host devices
+    # in test_sweep.py (bit-identical to one device, and under vmap).
+    cam = camera_from_degrees([0, 0, 0], width=8, height=6)
+    v, f = np.eye(3, dtype=np.float32) + [0, 0, 2], np.array([[0, 1, 2]], np.int32)
+    with pytest.raises((ValueError, TypeError), match="devices"):
+        rasterize(cam, v, f, devices=devices)
+
+
 def test_bad_mesh_files(tmp_path):
     with pytest.raises(FileNotFoundError, match="not found"):
         load_mesh(tmp_path / "missing.ply")
