@@ -33,8 +33,9 @@ longer meet the scene's height range ``[0, top]`` past the walk's t
 edge for the rows above the horizon), and before each step a few cheap steps
 (:func:`_free_step`, only a column's floor-to-top span projected) pass cells whose
 whole column falls on rows already drawn.  1 / 100 / 1600 instanced trees, 512x384
-2x1 AA, same run, CPU time per frame: 62 / 208 / 420 ms before, 64 / 178 / 306 ms
-after (6.7x -> 4.75x one tree; load 7).  The rest is the walk itself: the horizon
+2x1 AA, same run, CPU time per frame: 62 / 208 / 420 ms before, 65 / 178 / 306 ms
+after (6.7x -> 4.75x one tree); R = 256 bunnies 124 / 435 / 1079 -> 119 / 326 / 569
+ms (8.7x -> 4.8x; load 4-7, README).  The rest is the walk itself: the horizon
 rows see trees thousands of voxels away, and each LOD band costs about
 ``lod_distance / 2`` cells per plane, whatever the cells hold.  A height skip
 over mip ancestors (every open ray above a coarse cell's top: jump the block) was
