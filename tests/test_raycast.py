@@ -11,7 +11,14 @@ import pytest
 
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
-from jaxgfx.camera import camera_from_degrees, look_at, project, stack_cameras, supersampled
+from jaxgfx.camera import (
+    camera_basis,
+    camera_from_degrees,
+    look_at,
+    project,
+    stack_cameras,
+    supersampled,
+)
 
 W, H = 96, 72
 # Share of pixels (where either renderer hits) that must agree.
@@ -405,7 +412,8 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene):
     # render_rle's warp scans the unresolved lists of covered tiles only; it must
     # give the thesis-form warp's frame (coverage tree per plane, every pixel),
     # with the pixel ray's depth up to float rounding.  A pool too small for the
-    # frame's lists counts what it drops.
+    # frame's lists counts what it drops.  Without the cheap steps that pass
+    # columns hidden behind drawn rows (free_steps=0) the lists are the same.
     _, rle, _, _ = scene
     cam = CAMERAS[2][1]
     P = RC.default_num_planes(W, H, 2.0)
@@ -415,13 +423,27 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene):
     @jax.jit
     def both(rle, cam, seg):
         tex, els, _ = RC.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
-        pool, start, drawn, cov, _ = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
-        small = RC.traverse_lists(rle, cam, seg, jnp.arange(P), pool_size=100, **kw)
+        pool, start, drawn, cov, st = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
+        small = RC.traverse_lists(rle, cam, seg, jnp.arange(P), pool_size=100, free_steps=0, **kw)
         a = RC.warp_ray_buffer(rle, cam, seg, tex, els)
         b = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
-        return a, b, jnp.sum(drawn), jnp.sum(small[2]), jnp.sum(small[4][:, 3])
+        return (
+            a,
+            b,
+            jnp.sum(drawn),
+            jnp.sum(small[2]),
+            jnp.sum(small[4][:, 3]),
+            pool,
+            cov,
+            st,
+            small,
+        )
 
-    a, b, n, kept, lost = both(rle, cam, seg)
+    a, b, n, kept, lost, pool, cov, st, small = both(rle, cam, seg)
+    np.testing.assert_array_equal(np.asarray(small[0]), np.asarray(pool)[:, :100])
+    np.testing.assert_array_equal(np.asarray(small[3]), np.asarray(cov))
+    # ... while the default decodes fewer columns (it passes the hidden ones).
+    assert np.asarray(st)[:, 1].sum() < np.asarray(small[4])[:, 1].sum()
     assert int(n) > 200 and 0.1 < np.isfinite(np.asarray(a[1])).mean() < 0.5
     np.testing.assert_array_equal(np.asarray(a[0]), np.asarray(b[0]))
     np.testing.assert_array_equal(np.asarray(a[2]), np.asarray(b[2]))
@@ -450,3 +472,46 @@ def test_far_plane_spacing_follows_the_lod_cell():
     assert count(near, planes_per_voxel=3.0) == count(
         near, planes_per_voxel=3.0, lod_distance=96.0, levels=7
     )
+
+
+def test_live_rows_keep_every_row_that_can_still_meet_the_scene():
+    # A plane stops once its undrawn rows can no longer meet 0 <= y <= top past
+    # the walk's t (eye above the scene, rows above the horizon or between the
+    # crowns of an instance map).  Brute force per row from its own slope: no
+    # row that can still meet the slab is left out, and the bound is tight (a
+    # row kept that cannot is within one row of the range's ends).
+    from jaxgfx._src.voxel.traverse import _plane_init
+    from jaxgfx._src.voxel.walk import _live_rows
+
+    cam = look_at([-10, 26, -12], [40, 14, 50], 55, W, H, far=1e5)
+    seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=64)
+    rle = dataclasses.replace(V.encode_rle(_scene()), shape=(96, 20, 96))
+    ey, top, ts = 26.0, 20.0, jnp.asarray([1.0, 15.0, 40.0, 90.0])
+
+    @jax.jit
+    def rows_and_slopes(ts):
+        planes = jnp.arange(64)
+        consts, _ = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=W, K=64))(planes)
+        pp = jax.vmap(lambda p: RC.plane_parameters(cam, seg, p, rows=W))(planes)
+        fy = camera_basis(cam)[2][1]
+        live = jax.vmap(lambda q, t: _live_rows(q, jnp.float32(ey), t, y_top=top, fy=fy))
+        a0, a1 = jax.vmap(lambda t: live(consts, jnp.broadcast_to(t, (64,))))(ts)
+        return a0, a1, pp.row_slope, pp.valid, pp.lo, pp.hi, consts.t_far
+
+    out = [np.asarray(a) for a in rows_and_slopes(ts)]
+    a0s, a1s, slope, valid, lo, hi, t_far = out
+    slope, rows = slope.astype(np.float64), np.arange(W)[None, :]
+    lo, hi, t_far = lo[:, None], hi[:, None], t_far.astype(np.float64)[:, None]
+    kept = 0
+    for t, a0, a1 in zip(np.asarray(ts, np.float64), a0s, a1s):
+        a0, a1 = a0[:, None], a1[:, None]
+        y_near, y_far = ey + slope * t, ey + slope * np.maximum(t_far, t)
+        meets = valid & (np.maximum(y_near, y_far) >= 0) & (np.minimum(y_near, y_far) <= top)
+        inside = (rows >= a0) & (rows < a1)
+        # (A plane's first and last rows are drawn only as far as an element's
+        # slope clipped to the plane's range projects onto them; so are these.)
+        assert not np.any(meets & ~inside & (rows > lo) & (rows < hi - 1))
+        loose = valid & inside & ~meets & (rows > a0) & (rows < a1 - 1)
+        assert not np.any(loose)
+        kept += int(np.sum(meets))
+    assert kept > 1000 and int(np.sum(valid)) * 4 > kept  # rows were dropped
