@@ -231,12 +231,17 @@ def interpolate(attributes: jax.Array, faces: jax.Array, tri_id: jax.Array, bary
         tri_id: (...) face per pixel, -1 where empty.
         bary: (..., 3) barycentrics.
     """
+    fv = _face_corners(faces, jnp.maximum(tri_id, 0).reshape(-1))
+    return _interpolate_corners(attributes, fv, tri_id, bary)
+
+
+def _interpolate_corners(attributes, fv, tri_id, bary):
+    """:func:`interpolate` from each pixel's 3 vertex indices ``fv`` (3 arrays (N,))."""
     c = attributes.shape[-1]
     # Per pixel: its face's 3 vertex indices, then 1-D gathers per corner and channel,
     # channels-first (an (..., 3, C) product summed over its corner axis costs ~50x
     # more on XLA:CPU).  No (F, 3C) table: for large meshes its fresh memory (page
     # faults) costs more than the gathers.
-    fv = _face_corners(faces, jnp.maximum(tri_id, 0).reshape(-1))
     a = attributes.T  # (C, V)
     b = bary.reshape(-1, 3).T
     out = jnp.stack(
@@ -452,7 +457,10 @@ def _shade_rows(cam, pv, faces, attributes, inv, fid, row0, h: int):
         # gave depths 1.5e-6 apart).
         g = jnp.take(pv, fv.reshape(-1), axis=0, mode="clip").reshape(-1, 9).T
         depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, row0 + i * rows, rows)
-        return interpolate(attributes, faces, tri_id, bary), depth, tri_id, bary
+        # The same corner indices again (tri_id is fid or -1 -> face 0 as above): one
+        # per-pixel gather of faces less (terrain 1024x768: frame -7 %, bunny -13 %).
+        colour = _interpolate_corners(attributes, [fv[:, k] for k in range(3)], tri_id, bary)
+        return colour, depth, tri_id, bary
 
     if stripes == 1:
         return shade(0, inv, fid)
