@@ -44,9 +44,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import PartitionSpec
 
-from jaxgfx._src.frames import stacked_vmap
+from jaxgfx._src.frames import batch_mesh, stacked_vmap
 from jaxgfx._src.zbuffer import (
     CHUNK,
     NO_TRI,
@@ -494,7 +494,7 @@ def _split_shade_fn(devices: tuple):
 
     return jax.shard_map(
         local,
-        mesh=Mesh(np.asarray(devices), (axis,)),
+        mesh=batch_mesh(devices, axis),
         in_specs=(PartitionSpec(),) * 6,
         out_specs=(PartitionSpec(axis),) * 4,
         check_vma=False,

@@ -26,12 +26,12 @@ __all__ = ["BATCH_AXIS", "batch_mesh", "split_mesh", "stack_size", "map_frames",
 BATCH_AXIS = "batch"
 
 
-def batch_mesh(devices=None) -> Mesh:
-    """1-D mesh (axis ``"batch"``) over ``devices`` (default: all devices of all processes)."""
+def batch_mesh(devices=None, axis: str = BATCH_AXIS) -> Mesh:
+    """1-D mesh (axis ``axis``) over ``devices`` (default: all devices of all processes)."""
     devs = np.asarray(jax.devices() if devices is None else list(devices))
     if devs.size == 0:
         raise ValueError("devices: no devices to build a mesh over")
-    return Mesh(devs, (BATCH_AXIS,))
+    return Mesh(devs, (axis,))
 
 
 def split_mesh(items: int) -> Mesh | None:

@@ -27,8 +27,9 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import PartitionSpec
 
+from jaxgfx._src.frames import batch_mesh
 from jaxgfx._src.zbuffer import NO_TRI, _frame_visibility, visible_faces
 
 __all__ = ["split_visible_faces", "resolve_devices"]
@@ -65,7 +66,7 @@ def resolve_devices(devices) -> tuple:
 def _split_fn(devices: tuple, cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
     """The split kernel for one static configuration (built once, cached)."""
     d = len(devices)
-    mesh = Mesh(np.asarray(devices), (_AXIS,))
+    mesh = batch_mesh(devices, _AXIS)
     static = dict(cull_backfaces=cull_backfaces, block=block, chunk=chunk, tri_batch=tri_batch)
 
     def local(cam, vertices, faces):
