@@ -351,8 +351,7 @@ def _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf):
         return state[0] < total + chunk
 
     def body(state):
-        c0, zbuf, ibuf, pix, wb, fid = state
-        old = zbuf.at[pix].get(mode="fill", fill_value=0)
+        c0, zbuf, ibuf, pix, wb, fid, old = state
         zbuf = zbuf.at[pix].max(wb, mode="drop")
         best = zbuf.at[pix].get(mode="fill", fill_value=-1)
         win = (wb == best) & (wb > 0)  # out of the frame: best is -1
@@ -362,9 +361,9 @@ def _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf):
         ibuf = ibuf.at[jnp.where(win & (best > old), pix, _OUT)].set(NO_TRI, mode="drop")
         ibuf = ibuf.at[jnp.where(win, pix, _OUT)].min(fid, mode="drop")
         nxt = jax.lax.cond(c0 < total, fragments, no_fragments, c0)
-        return (c0 + chunk, zbuf, ibuf, *nxt)
+        return (c0 + chunk, zbuf, ibuf, *nxt, zbuf.at[nxt[0]].get(mode="fill", fill_value=0))
 
-    state = (jnp.int32(0), zbuf, ibuf, *no_fragments(0))
+    state = (jnp.int32(0), zbuf, ibuf, *no_fragments(0), jnp.zeros(n_frag, jnp.int32))
     _, zbuf, ibuf, *_ = jax.lax.while_loop(cond, body, state)
     return zbuf, ibuf
 
