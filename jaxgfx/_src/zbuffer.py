@@ -210,11 +210,9 @@ def triangle_setup(
     alive = tris.valid & keep & (area2 != 0) & (ext_x > 0) & (ext_y > 0)
     nblocks = jnp.where(alive, nbx * nby, 0).astype(jnp.int32)
     wlim = jnp.broadcast_to(1.0 / jnp.stack([cam.near, cam.far])[:, None], (2, w.shape[-1]))
-    packed = jnp.concatenate(
-        [ax, ay, dx, dy, sign, jnp.stack([w[0], gx, gy, sx[0], sy[0]]), wlim], axis=0
-    )
-    ints = jnp.stack([lo_x, lo_y, hi_x, hi_y, jnp.maximum(nbx, 1), tris.source], axis=0)
-    return TriangleSetup(packed, ints.astype(jnp.int32), nblocks)
+    packed = (*ax, *ay, *dx, *dy, *sign, w[0], gx, gy, sx[0], sy[0], *wlim)
+    ints = (lo_x, lo_y, hi_x, hi_y, jnp.maximum(nbx, 1), tris.source)
+    return TriangleSetup(packed, ints, nblocks)
 
 
 def _min3(a):
@@ -246,8 +244,8 @@ def _chunk_fragments(cam, setup, starts, offsets, total, chunk0, chunk, block, t
     # fragment arithmetic below reads unit-stride rows and vectorises.  A (22, K) row
     # gather is laid out item-major by XLA:CPU and read with stride 22 (scalar code:
     # ~45 ns a fragment, against ~3 ns).
-    row = [jnp.take(setup.packed[i], t, mode="clip") for i in range(setup.packed.shape[0])]
-    irow = [jnp.take(setup.ints[i], t, mode="clip") for i in range(setup.ints.shape[0])]
+    row = [jnp.take(r, t, mode="clip") for r in setup.packed]
+    irow = [jnp.take(r, t, mode="clip") for r in setup.ints]
     local = item - jnp.take(starts, t, mode="clip")
     nbx = irow[4]
     q = jax.lax.div(local, nbx)  # non-negative: truncating division, no floor fix-ups
@@ -439,7 +437,7 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
             setup = setup_of(half)
             setup = TriangleSetup(
                 setup.packed,
-                setup.ints.at[5].add(first),
+                (*setup.ints[:5], setup.ints[5] + first),
                 jnp.where(done < b * size - first, 0, setup.nblocks),
             )
             return _zbuffer(cam, setup, block, chunk, 1, *bufs)
