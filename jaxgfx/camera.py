@@ -236,7 +236,17 @@ def world_to_camera(cam: Camera, points: jax.Array) -> jax.Array:
     """World points (..., 3) -> camera space (..., 3); z is depth."""
     right, up, forward = camera_basis(cam)
     rot = jnp.stack([right, up, forward])
-    return (points - cam.position) @ rot.T
+    d = points - cam.position
+    # Multiply-adds, not ``d @ rot.T``: XLA:CPU hands a (V, 3) x (3, 3) dot to its
+    # matrix library, which took ~20 ms for 360 k points (an elementwise pass: ~1 ms).
+    return d[..., 0:1] * rot[:, 0] + d[..., 1:2] * rot[:, 1] + d[..., 2:3] * rot[:, 2]
+
+
+def world_to_camera_soa(cam: Camera, points: jax.Array) -> jax.Array:
+    """:func:`world_to_camera` of points (V, 3), laid out as (3, V) (x, y, z rows)."""
+    right, up, forward = camera_basis(cam)
+    d = [points[:, k] - cam.position[k] for k in range(3)]
+    return jnp.stack([r[0] * d[0] + r[1] * d[1] + r[2] * d[2] for r in (right, up, forward)])
 
 
 def camera_to_screen(cam: Camera, p_cam: jax.Array) -> jax.Array:

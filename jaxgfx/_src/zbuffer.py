@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.frames import stacked_vmap
-from jaxgfx.camera import Camera, focal_lengths, world_to_camera
+from jaxgfx.camera import Camera, focal_lengths, world_to_camera_soa
 
 __all__ = [
     "ClippedTriangles",
@@ -105,7 +105,7 @@ _WNEAR, _WFAR = 20, 21
 
 def corners_soa(cam: Camera, vertices: jax.Array, faces: jax.Array) -> jax.Array:
     """Camera-space triangle corners as (3 coords, 3 corners, F)."""
-    pc = world_to_camera(cam, vertices).T  # (3, V)
+    pc = world_to_camera_soa(cam, vertices)  # (3, V)
     return pc[:, faces.T]
 
 
@@ -374,7 +374,7 @@ def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam=None, half=N
     both, as :func:`clip_near` lays them out.
     """
     if p_cam is None:
-        p_cam = world_to_camera(cam, vertices).T
+        p_cam = world_to_camera_soa(cam, vertices)
     corners = p_cam[:, faces.T]
     if half == "front":  # no face crosses the plane: no clipping arithmetic
         n_in = (corners[2] >= cam.near).sum(0)
@@ -414,7 +414,7 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     n = faces.shape[0]
     batches = max(1, -(-n // tri_batch))
     size = -(-n // batches)
-    p_cam = world_to_camera(cam, vertices).T  # once, not per batch
+    p_cam = world_to_camera_soa(cam, vertices)  # once, not per batch
     # The last batch's window is moved back to end at the last face (no padded copy
     # of the faces); its faces before b * size were drawn by the batch before.
     done = jnp.arange(size, dtype=jnp.int32)  # face of each setup slot
