@@ -358,7 +358,13 @@ def _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf):
         # step touches only this chunk's fragments, never the whole frame.
         ibuf = ibuf.at[jnp.where(win & (best > old), pix, _OUT)].set(NO_TRI, mode="drop")
         ibuf = ibuf.at[jnp.where(win, pix, _OUT)].min(fid, mode="drop")
-        nxt = jax.lax.cond(c0 < total, fragments, no_fragments, c0)
+        # The next chunk's fragments depend on the z-test's result (a test that never
+        # holds: face ids are >= 0), so XLA schedules them after the scatters have read
+        # this chunk's: they can then overwrite the loop carry in place, where XLA:CPU
+        # copied the three (B*B, K) carries every iteration (it drops optimization
+        # barriers).
+        c_next = jnp.where(ibuf[0] == -1, total, c0)
+        nxt = jax.lax.cond(c_next < total, fragments, no_fragments, c_next)
         return (c0 + chunk, zbuf, ibuf, *nxt, zbuf.at[nxt[0]].get(mode="fill", fill_value=0))
 
     state = (jnp.int32(0), zbuf, ibuf, *no_fragments(0), jnp.zeros(n_frag, jnp.int32))
