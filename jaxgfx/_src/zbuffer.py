@@ -238,8 +238,7 @@ def _chunk_fragments(cam, setup, starts, offsets, total, chunk0, chunk, block, t
     """
     item = chunk0 + jnp.arange(chunk, dtype=jnp.int32)
     live = item < total
-    t = jnp.searchsorted(offsets, item, side="right", method="scan").astype(jnp.int32)
-    t = jnp.minimum(t, offsets.shape[0] - 1)
+    t = jnp.minimum(_count_le(offsets, item), offsets.shape[0] - 1)
     # One 1-D gather per setup row: each lands in its own contiguous (K,) buffer, so the
     # fragment arithmetic below reads unit-stride rows and vectorises.  A (22, K) row
     # gather is laid out item-major by XLA:CPU and read with stride 22 (scalar code:
@@ -279,6 +278,25 @@ def _chunk_fragments(cam, setup, starts, offsets, total, chunk0, chunk, block, t
     # Not flattened: an XLA:CPU loop fusion whose result is reshaped to 1-D indexes it
     # linearly and stops vectorising (measured 9x slower); scatters take (B*B, K).
     return pix, w, fid, ok
+
+
+def _count_le(sorted_x, q):
+    """How many of ``sorted_x`` (non-decreasing, (N,)) are <= each query ``q`` (K,).
+
+    ``jnp.searchsorted(sorted_x, q, side="right")`` as a branchless binary search: one
+    gather-and-select per halving step on a single carried position, which XLA:CPU
+    updates in place (``method="scan"`` carries two bounds and copied both each step).
+    """
+    n = sorted_x.shape[0]
+    levels = max(n.bit_length(), 1)
+
+    def halve(i, pos):
+        step = jnp.left_shift(jnp.int32(1), levels - 1 - i)
+        cand = pos + step
+        ok = (cand <= n) & (jnp.take(sorted_x, cand - 1, mode="clip") <= q)
+        return jnp.where(ok, cand, pos)
+
+    return jax.lax.fori_loop(0, levels, halve, jnp.zeros(q.shape, jnp.int32))
 
 
 def _prefix_sum(x):
