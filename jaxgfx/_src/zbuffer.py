@@ -32,6 +32,23 @@ not vectorise: fragment generation 4x slower); an item -> triangle table (scatte
 running max) instead of the binary search (neutral: XLA turned the per-chunk
 ``lax.cond`` choosing between them into a select that ran both); (h, w) planes in the
 resolve and 9 one-dimensional corner gathers in the setup (no change).
+
+Session 12, from a ``jax.profiler`` trace (per-op times of the XLA:CPU thunks) and the
+compiled HLO: the z-test loop copied its whole z-buffer twice per chunk (the gather of the
+pre-scatter depths was fused *after* the in-place scatter-max, so XLA kept a copy; they are
+now gathered at the end of the previous iteration and carried), copied its three fragment
+carries per chunk (the next chunk's fragments were scheduled before the scatters had read
+the current ones; now they depend on the z-test's result), the setup stacked its 22 rows
+into one array (a 5.8 MB copy per face batch; now a tuple of rows), ``searchsorted``'s
+scan carried and copied two bounds per halving step (now :func:`_count_le`, one carried
+position), and ``world_to_camera``'s (V, 3) x (3, 3) dot went to XLA:CPU's matrix library
+(7.9 ms for 360 k vertices; now multiply-adds, 0.2 ms).  Same face ids bit for bit; one
+process, old and new interleaved (load ~3, one core busy with other work): terrain
+1024x768 CPU 0.77x, bunny 512x384 0.81x.  Tried and not kept: masking rejected fragments'
+pixel indices to an out-of-range value so the scatters drop them (1.19x: the masked
+scatter branches), ``lax.scatter`` without ``.at[]``'s index normalisation (a (N, 1)
+index copy stays; neutral), ``method="scan_unrolled"`` (1.6x) and an unrolled branchless
+search (1.5x), generating fragments without the per-chunk ``lax.cond`` (1.05-1.09x).
 """
 
 from __future__ import annotations
@@ -85,12 +102,14 @@ class ClippedTriangles(NamedTuple):
 class TriangleSetup(NamedTuple):
     """Per-triangle screen-space data, structure-of-arrays (triangle axis last).
 
-    Kept SoA on purpose: a (T, 20) layout would need a transpose of the whole
-    array, which costs more on XLA:CPU than gathering 20 rows per work item.
+    Kept SoA on purpose: a (T, 22) layout would need a transpose of the whole
+    array, which costs more on XLA:CPU than gathering 22 rows per work item.  The
+    rows are separate arrays, not one stacked (22, T) array: the setup's fusion
+    writes each row once, where the stack cost a 5.8 MB copy per 2^16 faces.
     """
 
-    packed: jax.Array  # (22, T) float32, rows as in the _AX.._WFAR constants
-    ints: jax.Array  # (6, T) int32 rows: lo_x, lo_y, hi_x, hi_y, nblocks_x, source face
+    packed: tuple[jax.Array, ...]  # 22 (T,) float32 rows, as in the _AX.._WFAR constants
+    ints: tuple[jax.Array, ...]  # 6 (T,) int32 rows: lo_x, lo_y, hi_x, hi_y, nblocks_x, face
     nblocks: jax.Array  # (T,) int32 tiles in the bbox, 0 for culled triangles
 
 
