@@ -256,12 +256,15 @@ def figure(path: Path, frame_rows: list[dict], batch_rows: list[dict]) -> None:
     from jaxgfx.io import atomic_write
 
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
-    methods = ["jaxgfx", "open3d", "llvmpipe", "trimesh+embree"]
+    methods = ["jaxgfx", "jaxgfx_split", "open3d", "llvmpipe", "trimesh+embree"]
+    methods = [k for k in methods if any(f"{k}_ms" in r for r in frame_rows)]
+    names = {"jaxgfx_split": "jaxgfx, rasterize(devices=all)"}
     labels = [f"{r['mesh'].split(' ')[0]}\n{r['size']}" for r in frame_rows]
     x = np.arange(len(frame_rows))
+    bar = 0.8 / len(methods)
     for i, k in enumerate(methods):
         ys = [r.get(f"{k}_ms", np.nan) for r in frame_rows]
-        ax[0].bar(x + (i - 1.5) * 0.2, ys, 0.2, label=k)
+        ax[0].bar(x + (i - (len(methods) - 1) / 2) * bar, ys, bar, label=names.get(k, k))
     ax[0].set_xticks(x, labels)
     ax[0].set_yscale("log")
     ax[0].set_ylabel("ms per frame (lower is better)")

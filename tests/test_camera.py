@@ -194,3 +194,19 @@ def test_stack_rejects_mixed_resolution():
         stack_cameras([cam, other])
     with pytest.raises(ValueError, match="distinct"):
         look_at([1, 1, 1], [1, 1, 1])
+
+
+@pytest.mark.parametrize("kw", CAMS)
+def test_world_to_camera_matches_rotation_matrix(kw):
+    # world_to_camera (multiply-adds) and its (3, V) layout against the rotation matrix
+    # of the basis in float64 NumPy.
+    from jaxgfx.camera import world_to_camera, world_to_camera_soa
+
+    cam = camera_from_degrees(width=32, height=24, **kw)
+    pts = np.random.default_rng(0).normal(size=(50, 3)).astype(np.float32) * 10
+    rot = np.stack([np.asarray(v, np.float64) for v in camera_basis(cam)])
+    ref = (pts - np.asarray(cam.position, np.float64)) @ rot.T
+    np.testing.assert_allclose(world_to_camera(cam, pts), ref, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(
+        world_to_camera_soa(cam, jnp.asarray(pts)), ref.T, rtol=1e-5, atol=1e-4
+    )

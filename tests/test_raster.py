@@ -454,3 +454,17 @@ def test_gradients_match_finite_differences_on_interior_pixels():
     tri = v[f[np.asarray(ref[3])[interior]]].astype(np.float64)
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     np.testing.assert_allclose(d_depth, -(n @ fwd) / np.sum(n * d, -1), rtol=1e-4)
+
+
+def test_count_le_matches_searchsorted():
+    # The z-buffer's work item -> triangle search (_count_le) against NumPy's
+    # searchsorted(side="right"): repeated offsets (triangles with no tiles), queries
+    # before, between, on and past them, and lengths 1, a power of two and one past it.
+    from jaxgfx._src.zbuffer import _count_le
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 8, 9, 37):
+        x = np.sort(rng.integers(0, 20, n)).astype(np.int32)
+        q = np.arange(-2, 24, dtype=np.int32)
+        got = jax.jit(_count_le)(jnp.asarray(x), jnp.asarray(q))
+        np.testing.assert_array_equal(got, np.searchsorted(x, q, side="right"))
