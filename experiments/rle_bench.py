@@ -436,6 +436,10 @@ def main(argv=None) -> int:
                     help="also voxelize bunny and dragon at this resolution for bits/voxel "
                     "(default: 1024, or off with --quick)")  # fmt: skip
     args = ap.parse_args(argv)
+    # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
+    import jaxgfx
+
+    jaxgfx.keep_freed_memory()
     if args.bits_res is None:
         args.bits_res = 0 if args.quick else 1024
     if not args.quick and "host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):

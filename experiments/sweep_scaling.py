@@ -102,6 +102,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="16 frames of 80x60, 3 rounds")
     ap.add_argument("--out", default=None, help="directory for table.md / table.json")
     args = ap.parse_args(argv)
+    # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
+    import jaxgfx
+
+    jaxgfx.keep_freed_memory()
     cores = _cores()
     if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
         jax.config.update("jax_num_cpu_devices", cores)  # before JAX's backends start

@@ -33,6 +33,7 @@ from jaxgfx import (
     sweep,
     terrain,
 )
+from jaxgfx._src.hostmem import keep_freed_memory
 from jaxgfx.camera import (
     Camera,
     camera_from_degrees,
@@ -152,6 +153,7 @@ __all__ = [
     "load_sweep",
     "sharded_renderer",
     "sharded_vmap",
+    "keep_freed_memory",
     # ch. 3 terrain
     "XorTerrain",
     "SawTerrain",

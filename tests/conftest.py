@@ -24,13 +24,16 @@ def cache_calls(tmp_path, monkeypatch):
     """Keeps in-process ``jaxgfx.cli.main`` away from the real cache and JAX's global settings.
 
     main() calls ``enable_compilation_cache(cache_dir())``; here it only records the
-    directory (``$JAXGFX_CACHE_DIR`` points into the test's tmp dir).
+    directory (``$JAXGFX_CACHE_DIR`` points into the test's tmp dir).  Its
+    ``keep_freed_memory()`` is a no-op here (see ``test_hostmem``).
     """
     import jaxgfx.cli
 
     calls: list = []
     monkeypatch.setenv("JAXGFX_CACHE_DIR", str(tmp_path / "jax-cache"))
     monkeypatch.setattr(jaxgfx.cli, "enable_compilation_cache", calls.append)
+    # The test process's malloc stays as it is (main() would set it process-wide).
+    monkeypatch.setattr(jaxgfx.cli, "keep_freed_memory", lambda: True)
     return calls
 
 

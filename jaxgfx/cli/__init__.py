@@ -16,6 +16,10 @@ devices (``jaxgfx sweep``, marked by a ``--devices`` option) first give JAX one 
 core by adding ``--xla_force_host_platform_device_count`` to ``XLA_FLAGS``
 (:func:`host_device_flags`).  ``import jaxgfx`` imports JAX but does not start its backends, so
 :func:`main` can still do this before the first JAX computation.
+
+Fresh memory: :func:`main` also makes the process's ``malloc`` keep what it frees
+(:func:`jaxgfx.keep_freed_memory`), so XLA:CPU's calls reuse touched pages instead of
+page-faulting fresh ones every frame.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn
 
+from jaxgfx._src.hostmem import keep_freed_memory
 from jaxgfx.cli import demo, flythrough, info, render, skin, terrain, voxels
 from jaxgfx.cli.args import CliError, join_negative_values
 
@@ -171,6 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if getattr(args, "devices", False) is not False:  # a command that shards over devices
             _use_host_cores(args.devices)
+        keep_freed_memory()  # XLA:CPU's next call reuses the last one's memory
         if not args.no_cache:
             enable_compilation_cache(cache_dir())
         return int(args.func(args) or 0)
