@@ -64,6 +64,7 @@ from jaxgfx._src.voxel.walk import (
     _free_step,
     _live_rows,
     _next_cell,
+    _once,
     _PlaneConsts,
     _PlaneState,
     _row_mask,
@@ -209,14 +210,14 @@ def _plane_step(
     r0 = jnp.ceil(jnp.minimum(a_lo, a_hi) - 0.5).astype(jnp.int32)
     r1 = jnp.floor(jnp.maximum(a_lo, a_hi) - 0.5).astype(jnp.int32) + 1
     # Floating horizon: rows outside [lo, hi) are already drawn.
-    r0 = jnp.maximum(r0, lo)
-    r1 = jnp.minimum(r1, hi)
+    r0 = _once(jnp.maximum(r0, lo))
+    r1 = _once(jnp.minimum(r1, hi))
     # Coverage culling (4.5.4.3): the thesis's 1-bit-per-pixel visibility
     # map of the column; an element that adds no new pixel is culled.
     cov_in = cov
     mask = _row_mask(r0, r1, n_words)  # (Ec, W) uint32
     fresh = jnp.any((mask & ~cov[None, :]) != 0, axis=1)
-    draw = vis & (r0 < r1) & fresh
+    draw = _once(vis & (r0 < r1) & fresh)  # read by six fused ops below
     drawn = jnp.where(draw[:, None], mask, jnp.uint32(0))
     cov = cov | jax.lax.reduce(drawn, np.uint32(0), jax.lax.bitwise_or, (0,))
     # The DDA moves on once the column's elements are all processed.
