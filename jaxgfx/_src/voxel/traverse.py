@@ -41,6 +41,20 @@ rows see trees thousands of voxels away, and each LOD band costs about
 over mip ancestors (every open ray above a coarse cell's top: jump the block) was
 tried and dropped: coarse mip cells round the crowns' tops up to the scene's top,
 so it never fired on the forest, and its reads made each step 2-3x dearer.
+
+Where a step's time goes (issue 15, session 12; 1600 trees, camera 1): ~2,000
+iterations of 95-plane steps plus their free steps.  Run on one core
+(``taskset``), the traversal takes the same time for 48- to 376-plane chunks
+(fewer iterations, each dearer in proportion), so a step's cost is per plane,
+not per op: XLA:CPU fuses cheap element-wise producers into every consumer, so
+values read by several fused ops were recomputed in each (:func:`_once` pins
+the rows and draw flags: 0.80x).  On two threads XLA splits the bigger fused ops
+(the W-word coverage masks, the list scatter) over both cores, and the idle
+worker spins: CPU time is ~2x wall time, and perfetto traces show those ops 5-10x
+dearer than on one core.  A coverage map kept as end words plus a one-bit-per-word
+summary (O(1) words per range instead of W) looked like half the frame in such a
+trace but was 1.2x slower on one core and no faster on two: dropped.  Fixed
+unrolled free steps instead of their loop: 1.9-3.2x slower (as inline ones were).
 """
 
 from __future__ import annotations
@@ -64,6 +78,7 @@ from jaxgfx._src.voxel.walk import (
     _free_step,
     _live_rows,
     _next_cell,
+    _once,
     _PlaneConsts,
     _PlaneState,
     _row_mask,
@@ -209,14 +224,14 @@ def _plane_step(
     r0 = jnp.ceil(jnp.minimum(a_lo, a_hi) - 0.5).astype(jnp.int32)
     r1 = jnp.floor(jnp.maximum(a_lo, a_hi) - 0.5).astype(jnp.int32) + 1
     # Floating horizon: rows outside [lo, hi) are already drawn.
-    r0 = jnp.maximum(r0, lo)
-    r1 = jnp.minimum(r1, hi)
+    r0 = _once(jnp.maximum(r0, lo))
+    r1 = _once(jnp.minimum(r1, hi))
     # Coverage culling (4.5.4.3): the thesis's 1-bit-per-pixel visibility
     # map of the column; an element that adds no new pixel is culled.
     cov_in = cov
     mask = _row_mask(r0, r1, n_words)  # (Ec, W) uint32
     fresh = jnp.any((mask & ~cov[None, :]) != 0, axis=1)
-    draw = vis & (r0 < r1) & fresh
+    draw = _once(vis & (r0 < r1) & fresh)  # read by six fused ops below
     drawn = jnp.where(draw[:, None], mask, jnp.uint32(0))
     cov = cov | jax.lax.reduce(drawn, np.uint32(0), jax.lax.bitwise_or, (0,))
     # The DDA moves on once the column's elements are all processed.

@@ -39,6 +39,21 @@ def _row_mask(r0, r1, n_words):
     return jnp.where(b > a, low(b) & ~low(a), jnp.uint32(0))
 
 
+def _once(x):
+    """``x`` (int32 or bool), computed once for all of its users; the same values.
+
+    XLA:CPU fuses cheap element-wise producers into every consumer, so a value
+    read by several fused ops (an element's rows by the coverage test, the
+    coverage update, the floating horizon and the list slots) is recomputed in
+    each, from the element's projection on.  A reduce is never fused into more
+    than one consumer: a ``min`` with the type's largest value pins ``x`` in
+    memory.  Measured on the traversal alone, one core, 1600 trees: 0.80x the
+    time (rows and draw flags of a step, rows of a free step), identical lists.
+    """
+    top = True if x.dtype == jnp.bool_ else jnp.iinfo(x.dtype).max
+    return jnp.min(jnp.stack([x, jnp.full_like(x, top)], axis=-1), axis=-1)
+
+
 def _empty_box(rle, ix, iz, lev, col, has_tile, sx, sz):
     """Cells ``[x0, x1) x [z0, z1)`` around empty cell (ix, iz) known to be empty.
 
@@ -240,6 +255,7 @@ def _free_step(
     r0, r1 = _rows_of(_project(consts, e_smin, forward[1]), _project(consts, e_smax, forward[1]))
     r0 = jnp.maximum(r0 - 1, carry.lo)
     r1 = jnp.minimum(r1 + 1, carry.hi)
+    r0, r1 = _once(r0), _once(r1)
     fresh = jnp.any((_row_mask(r0[None], r1[None], n_words)[0] & ~carry.cov) != 0)
     go = ((n == 0) | ~fresh | (e_smin > e_smax)) & ~done & (carry.k == 0)
     ix_n, iz_n, lev_n, t_n, leaves = _next_cell(
