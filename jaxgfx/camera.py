@@ -234,19 +234,22 @@ def view_matrix(cam: Camera) -> jax.Array:
 
 def world_to_camera(cam: Camera, points: jax.Array) -> jax.Array:
     """World points (..., 3) -> camera space (..., 3); z is depth."""
-    right, up, forward = camera_basis(cam)
-    rot = jnp.stack([right, up, forward])
-    d = points - cam.position
-    # Multiply-adds, not ``d @ rot.T``: XLA:CPU hands a (V, 3) x (3, 3) dot to its
-    # matrix library, which took ~20 ms for 360 k points (an elementwise pass: ~1 ms).
-    return d[..., 0:1] * rot[:, 0] + d[..., 1:2] * rot[:, 1] + d[..., 2:3] * rot[:, 2]
+    return jnp.stack(_camera_coords(cam, points), axis=-1)
 
 
 def world_to_camera_soa(cam: Camera, points: jax.Array) -> jax.Array:
     """:func:`world_to_camera` of points (V, 3), laid out as (3, V) (x, y, z rows)."""
-    right, up, forward = camera_basis(cam)
-    d = [points[:, k] - cam.position[k] for k in range(3)]
-    return jnp.stack([r[0] * d[0] + r[1] * d[1] + r[2] * d[2] for r in (right, up, forward)])
+    return jnp.stack(_camera_coords(cam, points), axis=0)
+
+
+def _camera_coords(cam: Camera, points: jax.Array) -> list[jax.Array]:
+    """Camera-space x, y, z of world points (..., 3), each (...).
+
+    Multiply-adds, not ``(points - position) @ rot.T``: XLA:CPU hands a (V, 3) x (3, 3)
+    dot to its matrix library, 7.9 ms for 360 k points against 0.2 ms this way.
+    """
+    d = [points[..., k] - cam.position[k] for k in range(3)]
+    return [r[0] * d[0] + r[1] * d[1] + r[2] * d[2] for r in camera_basis(cam)]
 
 
 def camera_to_screen(cam: Camera, p_cam: jax.Array) -> jax.Array:

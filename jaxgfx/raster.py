@@ -55,6 +55,7 @@ from jaxgfx._src.zbuffer import (
     TriangleSetup,
     _chunk_fragments,
     _frame_visibility,
+    _work_list,
     clip_near,
     corners_soa,
     triangle_setup,
@@ -145,9 +146,7 @@ def coverage_count(
     faces = jnp.asarray(faces, jnp.int32)
     tris = clip_near(corners_soa(cam, vertices, faces), cam.near)
     setup = triangle_setup(cam, tris, jnp.ones(tris.valid.shape, bool), block)
-    offsets = jnp.cumsum(setup.nblocks)
-    starts = offsets - setup.nblocks
-    total = offsets[-1]
+    starts, offsets, total = _work_list(setup.nblocks)
     npix = cam.width * cam.height
 
     def body(state):

@@ -324,6 +324,14 @@ def _prefix_sum(x):
     return jax.lax.associative_scan(jnp.add, x) if x.shape[0] else x
 
 
+def _work_list(nblocks):
+    """Where each triangle's work items (tiles) start and end in the work list, and how
+    many items there are: ``(starts, offsets, total)`` (``offsets`` inclusive)."""
+    offsets = _prefix_sum(nblocks)
+    total = offsets[-1] if nblocks.shape[0] else jnp.int32(0)
+    return offsets - nblocks, offsets, total
+
+
 def visibility(
     cam: Camera, setup: TriangleSetup, block: int, chunk: int, frames: int = 1
 ) -> tuple[jax.Array, jax.Array]:
@@ -351,9 +359,7 @@ def _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf):
     """:func:`visibility` continuing from z-buffer ``zbuf`` (1/z bits) and face buffer ``ibuf``."""
     n_tris = setup.nblocks.shape[0]
     per_frame = n_tris // frames if frames > 1 else 0
-    offsets = _prefix_sum(setup.nblocks)
-    starts = offsets - setup.nblocks
-    total = offsets[-1] if n_tris else jnp.int32(0)
+    starts, offsets, total = _work_list(setup.nblocks)
     n_frag = (block * block, chunk)
 
     def fragments(c0):
