@@ -610,3 +610,38 @@ def test_share_columns_stores_copies_once():
     assert len(shared.colors) < 0.5 * len(rle.colors)  # ... stored once
     assert b["bytes_with_color"] < a["bytes_with_color"]
     np.testing.assert_array_equal(shared.first, rle.first)
+
+
+def test_tail_sums_read_columns_as_the_decoder():
+    """The traversal's direct element reads (``tail_sums``) equal a full column decode."""
+    from jaxgfx._src.voxel import grid
+
+    rng = np.random.default_rng(7)
+    obj = _random_voxels(rng, (6, 90, 6), 500)
+    # A long column too: runs over 63 drawn and gaps over 1023 skipped split.
+    ys = np.r_[np.arange(2999, 2799, -1), np.arange(298, 293, -1)]
+    tall = V.make_voxels(np.stack([0 * ys, ys, 0 * ys], 1), np.zeros((len(ys), 3)), (2, 3000, 2))
+    for rle in (V.encode_rle(obj, levels=2), V.share_columns(V.encode_rle(obj, levels=2)),
+                V.encode_rle(tall)):  # fmt: skip
+        rle = V.as_jax(rle)
+        E = rle.max_elements
+        cols = np.arange(len(rle.count))
+        heights = np.repeat([s[1] for s in rle.level_shapes],
+                            np.diff(np.r_[rle.level_offsets, len(cols)]))  # fmt: skip
+        j = np.arange(E)
+
+        def both(col, h, rle=rle, E=E, j=j):
+            n, top, bottom, valid, before = grid._column_elements(rle, col, True, h, E)
+            safe, n2, d0, b0 = grid._column_head(rle, col, True, h)
+            got = grid._column_runs(rle, safe, n2, d0, b0, j)
+            bottoms = grid._element_bottoms(rle, safe, b0, j)[0]
+            return (n, top, bottom, valid, before), (n2, *got, bottoms)
+
+        ref, got = jax.vmap(both)(cols, heights)
+        valid = np.asarray(ref[3])
+        assert valid.sum() >= 5
+        np.testing.assert_array_equal(got[0], ref[0])
+        np.testing.assert_array_equal(got[3], valid)
+        # top, bottom, drawn before; the bottoms the step counts m from
+        for a, b in zip(got[1:3] + got[4:], ref[1:3] + ref[4:] + ref[2:3]):
+            np.testing.assert_array_equal(np.asarray(a)[valid], np.asarray(b)[valid])

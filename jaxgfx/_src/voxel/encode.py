@@ -64,6 +64,11 @@ class RLEVolume:
             distance in its level's cells to the nearest non-empty column of
             the same level (0 = non-empty), capped at 255; periodic in an
             instance map.  The ray caster jumps over the empty square it bounds.
+        tail_sums: (2, M) uint16, per element of ``elements`` (not in the
+            thesis, see :func:`_tail_sums`): the voxels its column tail spans
+            down to the element's bottom, and the drawn voxels of the tail
+            before it.  The ray caster reads a column's elements directly
+            instead of decoding every element above them.
         shape: static ``(X, Y, Z)`` of the whole scene at level 0
             (``TX * X_0, Y_0, TZ * Z_0``).
         level_shapes: static tuple of the object's ``(X_l, Y_l, Z_l)``.
@@ -80,6 +85,7 @@ class RLEVolume:
     colors: Array
     tiles: Array
     empty_dist: Array
+    tail_sums: Array
     shape: tuple = static_field()
     level_shapes: tuple = static_field()
     level_offsets: tuple = static_field()
@@ -140,6 +146,50 @@ def _empty_distances(count, level_shapes, level_offsets, periodic):
         occ = np.asarray(count[o : o + X * Z]).reshape(X, Z) > 0
         out.append(empty_space_distance(occ, periodic=periodic).reshape(-1))
     return np.concatenate(out).astype(np.uint8)
+
+
+def _tail_sums(count, ptr, elements) -> np.ndarray:
+    """Running sums over every column tail: the :attr:`RLEVolume.tail_sums` table.
+
+    A column's first element sits inline in the pointer map; its tail, the
+    elements after it, is ``elements[ptr : ptr + count - 1]``.  For the tail's
+    ``j``-th element (``j >= 1``), row 0 is ``S_j``, the voxels (skipped and
+    drawn) of tail elements ``1..j``, so its bottom voxel is the first
+    element's bottom minus ``S_j``; row 1 is the drawn voxels of tail
+    elements ``1..j-1``, its colours' offset after the first element's.
+    Both depend on the tail alone, so columns sharing a tail
+    (:func:`share_columns`) share them.  With them the ray caster reads the
+    elements a step works on without decoding the column above them (the
+    same heights, bit for bit).
+
+    Args:
+        count: (C,) elements per column.
+        ptr: (C,) index in ``elements`` of each column's second element.
+        elements: (M,) the packed tail elements; tails are contiguous and
+            either equal or disjoint (as :func:`encode_rle` and
+            :func:`share_columns` store them).
+
+    Returns:
+        (2, M) uint16.
+    """
+    el = np.asarray(elements).astype(np.int64)
+    count = np.asarray(count, np.int64)
+    ptr = np.asarray(ptr, np.int64)
+    starts = np.zeros(len(el), bool)
+    starts[np.unique(ptr[count > 1])] = True
+    starts[:1] = True
+    skip, draw = unpack_element(el)
+    adv = skip + draw
+    seg = np.cumsum(starts) - 1  # tail of each element
+    seg_start = np.flatnonzero(starts)
+    c_adv = np.cumsum(adv)
+    c_draw = np.cumsum(draw)
+    base_adv = (c_adv - adv)[seg_start][seg]
+    base_draw = (c_draw - draw)[seg_start][seg]
+    out = np.stack([c_adv - base_adv, c_draw - draw - base_draw])
+    if out.size and out.max() > 0xFFFF:
+        raise ValueError("a column tail spans more than 65535 voxels")
+    return out.astype(np.uint16)
 
 
 def _encode_level(vox: Voxels):
@@ -234,15 +284,18 @@ def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
         el_base += len(el)
         c_base += len(col)
     count = np.concatenate(counts)
+    ptr = np.concatenate(ptrs).astype(np.uint32)
+    elements = np.concatenate(els).astype(np.uint16) if el_base else np.zeros(1, np.uint16)
     return RLEVolume(
         first=np.concatenate(firsts).astype(np.uint16),
         count=count.astype(np.uint16),
-        ptr=np.concatenate(ptrs).astype(np.uint32),
+        ptr=ptr,
         color_ptr=np.concatenate(cptrs).astype(np.uint32),
-        elements=np.concatenate(els).astype(np.uint16) if el_base else np.zeros(1, np.uint16),
+        elements=elements,
         colors=np.concatenate(cols).astype(np.uint8) if c_base else np.zeros((1, 3), np.uint8),
         tiles=np.zeros((1, 1), np.int32),
         empty_dist=_empty_distances(count, shapes, offsets, periodic=False),
+        tail_sums=_tail_sums(count, ptr, elements),
         shape=shape,
         level_shapes=tuple(shapes),
         level_offsets=tuple(offsets),
@@ -302,7 +355,9 @@ def rle_stats(rle: RLEVolume) -> dict:
     stored drawn voxel (all levels) plus our 32-bit colour pointer per column.
     Buffers are counted as stored, so instances sharing columns count once.
     ``empty_dist_bytes`` is our empty-space distance map (one byte per
-    pointer-map entry, not in the thesis), reported apart from both.
+    pointer-map entry, not in the thesis) and ``tail_sums_bytes`` our running
+    sums over the column tails (four bytes per stored element, not in the
+    thesis), both reported apart.
     """
     entries = int(np.asarray(rle.count).shape[0])
     count = np.asarray(rle.count, np.int64)
@@ -328,6 +383,7 @@ def rle_stats(rle: RLEVolume) -> dict:
         bytes_with_color=position_bits // 8 + color_bytes,
         bytes_per_voxel_with_color=(position_bits / 8 + color_bytes) / nvox0,
         empty_dist_bytes=int(np.asarray(rle.empty_dist).shape[0]),
+        tail_sums_bytes=int(np.asarray(rle.tail_sums).nbytes),
     )
 
 
@@ -424,16 +480,18 @@ def share_columns(rle: RLEVolume) -> RLEVolume:
             n_el += len(tail)
             n_col += ndraw
         new_ptr[c], new_cptr[c] = hit
+    els_all = np.concatenate(els).astype(np.uint16) if n_el else np.zeros(1, np.uint16)
     return dataclasses.replace(
         rle,
         ptr=new_ptr.astype(np.uint32),
         color_ptr=new_cptr.astype(np.uint32),
-        elements=np.concatenate(els).astype(np.uint16) if n_el else np.zeros(1, np.uint16),
+        elements=els_all,
         colors=np.concatenate(cols).astype(np.uint8) if n_col else np.zeros((1, 3), np.uint8),
         first=first,
         count=np.asarray(rle.count),
         tiles=np.asarray(rle.tiles),
         empty_dist=np.asarray(rle.empty_dist),
+        tail_sums=_tail_sums(rle.count, new_ptr, els_all),
     )
 
 

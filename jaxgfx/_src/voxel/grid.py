@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.voxel.codec import unpack_element
+from jaxgfx._src.voxel.codec import MAX_DRAW, unpack_element
 
 __all__: list[str] = []  # private helpers of the chapter's modules
 
@@ -87,6 +87,41 @@ def _column_elements(rle, col, ok, level_height, E):
     drawn_before = _prefix_sum(draw) - draw
     valid = (j < n) & (draw > 0)
     return n, top, bottom, valid, drawn_before
+
+
+def _column_head(rle, col, ok, level_height):
+    """A column's first element (inline in the pointer map): ``(safe, n, draw0, bottom0)``.
+
+    ``safe``: the entry to read (0 where ``ok`` is False), ``n``: its element
+    count (0 there), ``draw0``: the first element's drawn voxels, ``bottom0``:
+    the height of its bottom voxel.
+    """
+    safe = jnp.where(ok, col, 0)
+    n = jnp.where(ok, rle.count[safe].astype(jnp.int32), 0)
+    skip0, draw0 = unpack_element(rle.first[safe].astype(jnp.int32))
+    return safe, n, draw0, level_height - skip0 - draw0
+
+
+def _element_bottoms(rle, safe, bottom0, j):
+    """Bottom voxel heights of a column's elements ``j`` (any shape, valid for ``j < n``)."""
+    idx = jnp.clip(rle.ptr[safe].astype(jnp.int32) + j - 1, 0, rle.elements.shape[0] - 1)
+    below = rle.tail_sums[0, idx].astype(jnp.int32)
+    return jnp.where(j == 0, bottom0, bottom0 - below), idx
+
+
+def _column_runs(rle, safe, n, draw0, bottom0, j):
+    """Elements ``j`` of one column, read directly: ``(top, bottom, valid, drawn_before)``.
+
+    The same values as :func:`_column_elements`, from the running sums over
+    the column's tail (:attr:`~jaxgfx.raycast.RLEVolume.tail_sums`) instead of
+    a prefix sum over every element above (the traversal's step reads 4
+    elements of a column of up to ``max_elements``).
+    """
+    bottom, idx = _element_bottoms(rle, safe, bottom0, j)
+    tail = j > 0
+    draw = jnp.where(tail, rle.elements[idx].astype(jnp.int32) & MAX_DRAW, draw0)
+    before = jnp.where(tail, draw0 + rle.tail_sums[1, idx].astype(jnp.int32), 0)
+    return bottom + draw - 1, bottom, (j < n) & (draw > 0), before
 
 
 # ---------------------------------------------------------------------------
