@@ -242,8 +242,12 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
         return jax.lax.map(one, batched, batch_size=chunk)
 
     spec = tuple(PartitionSpec("batch") if a == 0 else PartitionSpec() for a in axes)
+    # check_vma=False, as in sharded_renderer: a loop whose carry mixes shared and
+    # per-item values (the ray caster's plane loop) would otherwise fail to trace.
     jitted = jax.jit(
-        jax.shard_map(local, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"))
+        jax.shard_map(
+            local, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"), check_vma=False
+        )
     )
     return ShardedMap(mesh, axes, jitted)
 

@@ -333,6 +333,15 @@ def test_sharded_vmap_checks_in_axes():
     with pytest.raises(TypeError, match="in_axes"):
         f(np.arange(3.0))
 
+    # A loop whose carry starts from shared data and takes in per-item data (as the ray
+    # caster's plane loop does) traces under the shard_map.
+    def loop(x, s):
+        body = lambda c: (c[0] + x, c[1] + 1)  # noqa: E731
+        return jax.lax.while_loop(lambda c: c[1] < 3, body, (s, 0))[0]
+
+    g = sharded_vmap(loop, in_axes=(0, None), devices=jax.devices()[:1])
+    np.testing.assert_array_equal(g(np.arange(3.0), 1.0), 1.0 + 3 * np.arange(3.0))
+
 
 # One process of a 2-process sweep on localhost (argv: process id or -1 for a one-process
 # sweep, coordinator port, out dir).  Each process has one CPU device; the processes meet
