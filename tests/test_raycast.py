@@ -408,12 +408,17 @@ def test_encoded_volume_closed_over_under_jit():
     np.testing.assert_array_equal(np.asarray(closed.color), np.asarray(passed.color))
 
 
-def test_warp_lists_equals_the_resolved_texel_warp(scene):
+def test_warp_lists_equals_the_resolved_texel_warp(scene, monkeypatch):
     # render_rle's warp scans the unresolved lists of covered tiles only; it must
     # give the thesis-form warp's frame (coverage tree per plane, every pixel),
     # with the pixel ray's depth up to float rounding.  A pool too small for the
     # frame's lists counts what it drops.  Without the cheap steps that pass
-    # columns hidden behind drawn rows (free_steps=0) the lists are the same.
+    # columns hidden behind drawn rows (free_steps=0) the lists are the same, and
+    # so they are when the top / bottom segments' chunks run with coverage maps of
+    # H rows (short_rows; split at any saving here, 1 word, instead of 16).
+    from jaxgfx._src.voxel import traverse
+
+    monkeypatch.setattr(traverse, "_SPLIT_WORDS", 1)
     _, rle, _, _ = scene
     cam = CAMERAS[2][1]
     P = RC.default_num_planes(W, H, 2.0)
@@ -425,6 +430,9 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene):
         tex, els, _ = RC.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
         pool, start, drawn, cov, st = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
         small = RC.traverse_lists(rle, cam, seg, jnp.arange(P), pool_size=100, free_steps=0, **kw)
+        # Columns of 128 rows (4 words; W = 96 needs 3), 3 for the top / bottom.
+        kw_split = dict(kw, rows=128)
+        split = RC.traverse_lists(rle, cam, seg, jnp.arange(P), short_rows=H, **kw_split)
         a = RC.warp_ray_buffer(rle, cam, seg, tex, els)
         b = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
         return (
@@ -437,9 +445,19 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene):
             cov,
             st,
             small,
+            split,
+            start,
+            drawn,
         )
 
-    a, b, n, kept, lost, pool, cov, st, small = both(rle, cam, seg)
+    a, b, n, kept, lost, pool, cov, st, small, split, start, drawn = both(rle, cam, seg)
+    lists = lambda p, s, d: [np.asarray(p)[:, a : a + b] for a, b in zip(s, d)]  # noqa: E731
+    for got, want in zip(lists(*(split[i] for i in (0, 1, 2))), lists(pool, start, drawn)):
+        np.testing.assert_array_equal(got, want)
+    for i, want in ((2, drawn), (4, st)):
+        np.testing.assert_array_equal(np.asarray(split[i]), np.asarray(want))
+    np.testing.assert_array_equal(np.asarray(split[3])[:, :3], np.asarray(cov))
+    assert not np.asarray(split[3])[:, 3].any()
     np.testing.assert_array_equal(np.asarray(small[0]), np.asarray(pool)[:, :100])
     np.testing.assert_array_equal(np.asarray(small[3]), np.asarray(cov))
     # ... while the default decodes fewer columns (it passes the hidden ones).

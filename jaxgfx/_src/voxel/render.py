@@ -290,6 +290,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         lod_distance=lod,
         buffer_size=buffer_size,
         elements_per_step=elements_per_step,
+        short_rows=cam.height,
         pool_size=(
             int(math.ceil(3 * oversample * cam.width * cam.height))
             if s.pool_size is None

@@ -63,9 +63,20 @@ them with two prefix sums, which XLA:CPU fused into about five of the step's ops
 (session 13, same frames, one process, interleaved, 512x384 2x1 AA): frames
 0.87x the time on ``untitled.vxl``, 0.92x on 1600 trees and the MR head, 0.97x
 on the R = 256 bunny, unchanged on the 64^3 tree.
+
+Every mask op of a step is as wide as the column's coverage map.  With 2x1 AA a
+column of the left and right segments has 2W rows, while the top and bottom
+segments' columns have H: chunks of only those run a second loop program with
+maps of ceil(H / 32) words (``short_rows``; 12 instead of 32 words at 512x384 2x1).
+Same lists, one process, interleaved (session 13): frames 0.77x the time on
+``untitled.vxl``, 0.86x on 1600 trees, 0.84x on the MR head, 0.92x on the tree.
+The split needs 16 words saved (:data:`_SPLIT_WORDS`): the second loop program
+is a second compile.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -97,6 +108,11 @@ from jaxgfx._src.voxel.walk import (
 from jaxgfx.camera import Camera, camera_basis, focal_lengths
 
 __all__ = ["traverse_lists"]
+
+# Coverage words a chunk of short columns must save for the traversal to run two loop
+# programs (one per coverage width): below this the second compile costs more than it
+# saves (512x384 with 2x1 AA saves 20 of 32 words; 128x96 with 2x1 AA 5 of 8).
+_SPLIT_WORDS = 16
 
 
 # ---------------------------------------------------------------------------
@@ -334,6 +350,7 @@ def traverse_lists(
     block_steps: int = 4,
     pool_size: int | None = None,
     free_steps: int = 4,
+    short_rows: int | None = None,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
@@ -382,6 +399,10 @@ def traverse_lists(
             cells that cannot draw (empty, or the whole column on drawn rows),
             while any plane of the chunk has one (default 4; 0: none).  Any
             value gives the same lists.
+        short_rows: static; the most rows a plane of the top and bottom segments
+            has (the camera height): chunks of only such planes run with coverage
+            maps that long, when that saves at least ``_SPLIT_WORDS`` words
+            (None: every chunk has ``rows``).  The same lists either way.
 
     Returns:
         ``(elements (P, 5, K) int32, drawn (P,) int32, coverage (P, ceil(rows / 32))
@@ -411,19 +432,33 @@ def traverse_lists(
     padded = jnp.concatenate([planes, jnp.full((Pp - P,), 2**30, planes.dtype)])
     # Planes past the frame's plane count (the static budget covers vp on
     # screen; most views need fewer) come in whole chunks that are skipped.
-    live = jnp.any(padded.reshape(n_chunks, size) < jnp.sum(seg.count), axis=1)
-    order = jnp.nonzero(live, size=n_chunks, fill_value=0)[0]
-    step = jax.vmap(
-        lambda q, c: _plane_step(
-            rle, cam, q, c, lod_distance=lod_distance, K=K, n_words=n_words, Ec=Ec
+    total = jnp.sum(seg.count)
+    by_chunk = padded.reshape(n_chunks, size)
+    live = jnp.any(by_chunk < total, axis=1)
+    # Planes of the top and bottom segments (0, 1) are textured along screen y, so
+    # their columns hold at most H rows: a chunk of only such planes runs with
+    # coverage maps of ceil(H / 32) words instead of ceil(rows / 32).  Every mask
+    # op of a step is that wide; with 2x1 AA (rows = 2W) most planes are such.
+    n_short = -(-min(rows, short_rows or rows) // 32)
+    if n_words - n_short < _SPLIT_WORDS:
+        n_short = n_words  # one loop program: a second compile would cost more
+    short = jnp.all((by_chunk >= total) | (by_chunk < seg.start[2]), axis=1)
+    groups = [(n_short, live & short), (n_words, live & ~short)]
+    if n_short == n_words:
+        groups = [(n_words, live)]
+
+    def chunk_fn(order, nw):
+        step = jax.vmap(
+            lambda q, c: _plane_step(
+                rle, cam, q, c, lod_distance=lod_distance, K=K, n_words=nw, Ec=Ec
+            )
         )
-    )
+        free = jax.vmap(
+            lambda q, c: _free_step(rle, cam, q, c, lod_distance=lod_distance, n_words=nw)
+        )
+        return functools.partial(chunk, order, nw, step, free)
 
-    free = jax.vmap(
-        lambda q, c: _free_step(rle, cam, q, c, lod_distance=lod_distance, n_words=n_words)
-    )
-
-    def chunk(i, bufs):
+    def chunk(order, nw, step, free, i, bufs):
         # One loop per chunk, so it stops when its own planes are done.  Its
         # lists live in one chunk-sized buffer reused by every chunk (it stays
         # in cache), and only the elements drawn are copied into the frame's
@@ -432,7 +467,9 @@ def traverse_lists(
         lists, pool, used, start, drawn, cov, stats = bufs
         base = order[i] * size
         part = jax.lax.dynamic_slice(padded, (base,), (size,))
-        consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, K=K))(part)
+        consts, carry0 = jax.vmap(
+            lambda p: _plane_init(rle, cam, seg, p, rows=32 * nw if nw < n_words else rows, K=K)
+        )(part)
         dest = jnp.arange(size, dtype=jnp.int32)[:, None]
 
         def one(c, _=None):
@@ -490,7 +527,7 @@ def traverse_lists(
             used + jnp.sum(stored),
             put(start, first),
             put(drawn, stored),
-            put(cov, state.cov),
+            put(cov, jnp.pad(state.cov, ((0, 0), (0, n_words - nw)))),
             put(stats, st),
         )
 
@@ -503,6 +540,9 @@ def traverse_lists(
         jnp.zeros((Pp, n_words), jnp.uint32),
         jnp.zeros((Pp, 4), jnp.int32),
     )
-    outs = jax.lax.fori_loop(0, jnp.sum(live.astype(jnp.int32)), chunk, bufs)
+    outs = bufs
+    for nw, mine in groups:
+        order = jnp.nonzero(mine, size=n_chunks, fill_value=0)[0]
+        outs = jax.lax.fori_loop(0, jnp.sum(mine.astype(jnp.int32)), chunk_fn(order, nw), outs)
     pool, per_plane = outs[1], outs[3:]
     return (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
