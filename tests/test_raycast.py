@@ -509,7 +509,8 @@ def test_live_rows_keep_every_row_that_can_still_meet_the_scene():
     @jax.jit
     def rows_and_slopes(ts):
         planes = jnp.arange(64)
-        consts, _ = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=W, K=64))(planes)
+        init = lambda p: _plane_init(rle, cam, seg, p, rows=W, n_words=-(-W // 32))  # noqa: E731
+        consts, _ = jax.vmap(init)(planes)
         pp = jax.vmap(lambda p: RC.plane_parameters(cam, seg, p, rows=W))(planes)
         fy = camera_basis(cam)[2][1]
         live = jax.vmap(lambda q, t: _live_rows(q, jnp.float32(ey), t, y_top=top, fy=fy))

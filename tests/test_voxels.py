@@ -612,8 +612,27 @@ def test_share_columns_stores_copies_once():
     np.testing.assert_array_equal(shared.first, rle.first)
 
 
+def _column_table_numpy(rle, E):
+    """Slow reference: (n, top, bottom, valid, drawn before), (C, E) each, element by element."""
+    first, count, ptr = (np.asarray(a, np.int64) for a in (rle.first, rle.count, rle.ptr))
+    elements = np.asarray(rle.elements, np.int64)
+    out = np.zeros((5, len(count), E), np.int64)
+    for lev, (_, Y, _) in enumerate(rle.level_shapes):
+        stop = rle.level_offsets[lev + 1] if lev + 1 < rle.levels else len(count)
+        for c in range(rle.level_offsets[lev], stop):
+            y, before = Y, 0
+            els = [first[c], *elements[ptr[c] : ptr[c] + count[c] - 1]]
+            for j, el in enumerate(els[: int(count[c])]):
+                skip, draw = int(el) >> 6, int(el) & 63
+                top = y - skip - 1
+                out[:, c, j] = count[c], top, top - draw + 1, draw > 0, before
+                y, before = y - skip - draw, before + draw
+            out[0, c] = count[c]
+    return out
+
+
 def test_tail_sums_read_columns_as_the_decoder():
-    """The traversal's direct element reads (``tail_sums``) equal a full column decode."""
+    """The direct element reads (``tail_sums``) equal a slow element-by-element decode."""
     from jaxgfx._src.voxel import grid
 
     rng = np.random.default_rng(7)
@@ -623,25 +642,28 @@ def test_tail_sums_read_columns_as_the_decoder():
     tall = V.make_voxels(np.stack([0 * ys, ys, 0 * ys], 1), np.zeros((len(ys), 3)), (2, 3000, 2))
     for rle in (V.encode_rle(obj, levels=2), V.share_columns(V.encode_rle(obj, levels=2)),
                 V.encode_rle(tall)):  # fmt: skip
-        rle = V.as_jax(rle)
         E = rle.max_elements
+        ref = _column_table_numpy(rle, E)
+        rle = V.as_jax(rle)
         cols = np.arange(len(rle.count))
         heights = np.repeat([s[1] for s in rle.level_shapes],
                             np.diff(np.r_[rle.level_offsets, len(cols)]))  # fmt: skip
         j = np.arange(E)
 
         def both(col, h, rle=rle, E=E, j=j):
-            n, top, bottom, valid, before = grid._column_elements(rle, col, True, h, E)
+            every = grid._column_elements(rle, col, True, h, E)
             safe, n2, d0, b0 = grid._column_head(rle, col, True, h)
             got = grid._column_runs(rle, safe, n2, d0, b0, j)
             bottoms = grid._element_bottoms(rle, safe, b0, j)[0]
-            return (n, top, bottom, valid, before), (n2, *got, bottoms)
+            return every, (n2, *got, bottoms)
 
-        ref, got = jax.vmap(both)(cols, heights)
-        valid = np.asarray(ref[3])
+        every, got = jax.vmap(both)(cols, heights)
+        valid = ref[3].astype(bool)
         assert valid.sum() >= 5
-        np.testing.assert_array_equal(got[0], ref[0])
+        np.testing.assert_array_equal(got[0], ref[0][:, 0])
         np.testing.assert_array_equal(got[3], valid)
-        # top, bottom, drawn before; the bottoms the step counts m from
-        for a, b in zip(got[1:3] + got[4:], ref[1:3] + ref[4:] + ref[2:3]):
+        np.testing.assert_array_equal(every[3], valid)
+        # top, bottom, drawn before; the bottoms the step counts m from; all of a column
+        for a, b in zip(got[1:3] + got[4:] + every[1:3] + every[4:],
+                        (*ref[1:3], ref[4], ref[2], *ref[1:3], ref[4])):  # fmt: skip
             np.testing.assert_array_equal(np.asarray(a)[valid], np.asarray(b)[valid])

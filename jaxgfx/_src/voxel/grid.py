@@ -1,8 +1,10 @@
 """Device-side reads of an encoded volume, shared by the ray caster's passes.
 
 The pointer map (4.4.6, Fig. 4.11) is read per map cell: :func:`_map_column` finds a
-cell's column (through the instance tile map), :func:`_column_elements` decodes a
-column's RLE elements into voxel height ranges.  :func:`_dda_entry` starts the exact
+cell's column (through the instance tile map), :func:`_column_runs` reads a
+column's RLE elements as voxel height ranges (through the running sums of
+:attr:`~jaxgfx.raycast.RLEVolume.tail_sums`, no decode of the elements above),
+:func:`_column_elements` all of them.  :func:`_dda_entry` starts the exact
 3-D DDA (Amanatides & Woo) that the per-pixel re-walk (:mod:`.warp`) and the
 reference renderer (:mod:`.reference`) share.  :func:`_safe_div` is the one guarded
 division of the chapter.
@@ -70,25 +72,6 @@ def _map_column(rle, ix, iz, lev, off, sx, sz):
     return in_map, tile >= 0, col
 
 
-def _column_elements(rle, col, ok, level_height, E):
-    """Decodes up to E elements of one column: (n, top, bottom, valid, drawn_before)."""
-    safe = jnp.where(ok, col, 0)
-    n = jnp.where(ok, rle.count[safe].astype(jnp.int32), 0)
-    j = jnp.arange(E)
-    ptr = rle.ptr[safe].astype(jnp.int32)
-    rest = rle.elements[jnp.clip(ptr + j - 1, 0, rle.elements.shape[0] - 1)]
-    el = jnp.where(j == 0, rle.first[safe], rest).astype(jnp.int32)
-    el = jnp.where(j < n, el, 0)
-    skip, draw = unpack_element(el)
-    adv = skip + draw
-    above = _prefix_sum(adv) - adv
-    top = level_height - 1 - above - skip  # topmost drawn voxel of the element
-    bottom = top - draw + 1
-    drawn_before = _prefix_sum(draw) - draw
-    valid = (j < n) & (draw > 0)
-    return n, top, bottom, valid, drawn_before
-
-
 def _column_head(rle, col, ok, level_height):
     """A column's first element (inline in the pointer map): ``(safe, n, draw0, bottom0)``.
 
@@ -112,16 +95,23 @@ def _element_bottoms(rle, safe, bottom0, j):
 def _column_runs(rle, safe, n, draw0, bottom0, j):
     """Elements ``j`` of one column, read directly: ``(top, bottom, valid, drawn_before)``.
 
-    The same values as :func:`_column_elements`, from the running sums over
-    the column's tail (:attr:`~jaxgfx.raycast.RLEVolume.tail_sums`) instead of
-    a prefix sum over every element above (the traversal's step reads 4
-    elements of a column of up to ``max_elements``).
+    From the running sums over the column's tail
+    (:attr:`~jaxgfx.raycast.RLEVolume.tail_sums`), not a prefix sum over every
+    element above: the traversal's step reads 4 elements of a column of up to
+    ``max_elements``.
     """
     bottom, idx = _element_bottoms(rle, safe, bottom0, j)
     tail = j > 0
     draw = jnp.where(tail, rle.elements[idx].astype(jnp.int32) & MAX_DRAW, draw0)
     before = jnp.where(tail, draw0 + rle.tail_sums[1, idx].astype(jnp.int32), 0)
     return bottom + draw - 1, bottom, (j < n) & (draw > 0), before
+
+
+def _column_elements(rle, col, ok, level_height, E):
+    """Up to E elements of one column: ``(n, top, bottom, valid, drawn_before)``."""
+    safe, n, draw0, bottom0 = _column_head(rle, col, ok, level_height)
+    top, bottom, valid, drawn_before = _column_runs(rle, safe, n, draw0, bottom0, jnp.arange(E))
+    return n, top, bottom, valid, drawn_before
 
 
 # ---------------------------------------------------------------------------

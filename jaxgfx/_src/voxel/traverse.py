@@ -139,8 +139,8 @@ def _unrank(rank, n, m):
 # ---------------------------------------------------------------------------
 
 
-def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
-    """Per-plane constants and the initial loop state of :func:`traverse_planes`."""
+def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, n_words: int):
+    """Per-plane constants and the initial loop state (coverage of ``n_words`` words)."""
     # s_min / s_max: slopes visible in this plane, to clip element slopes to the screen.
     h, lo, hi, s_min, s_max = plane_extent(cam, seg, plane, rows=rows)
     s_idx = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
@@ -182,7 +182,7 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, K: int):
         done=done0,
         lo=lo,
         hi=hi,
-        cov=jnp.zeros((-(-rows // 32),), jnp.uint32),
+        cov=jnp.zeros((n_words,), jnp.uint32),
         nbuf=jnp.int32(0),
         stats=jnp.zeros(3, jnp.int32),
         k=jnp.int32(0),
@@ -440,12 +440,10 @@ def traverse_lists(
     # coverage maps of ceil(H / 32) words instead of ceil(rows / 32).  Every mask
     # op of a step is that wide; with 2x1 AA (rows = 2W) most planes are such.
     n_short = -(-min(rows, short_rows or rows) // 32)
-    if n_words - n_short < _SPLIT_WORDS:
-        n_short = n_words  # one loop program: a second compile would cost more
-    short = jnp.all((by_chunk >= total) | (by_chunk < seg.start[2]), axis=1)
-    groups = [(n_short, live & short), (n_words, live & ~short)]
-    if n_short == n_words:
-        groups = [(n_words, live)]
+    groups = [(n_words, live)]  # below _SPLIT_WORDS: one loop program (one compile)
+    if n_words - n_short >= _SPLIT_WORDS:
+        short = jnp.all((by_chunk >= total) | (by_chunk < seg.start[2]), axis=1)
+        groups = [(n_short, live & short), (n_words, live & ~short)]
 
     def chunk_fn(order, nw):
         step = jax.vmap(
@@ -467,9 +465,9 @@ def traverse_lists(
         lists, pool, used, start, drawn, cov, stats = bufs
         base = order[i] * size
         part = jax.lax.dynamic_slice(padded, (base,), (size,))
-        consts, carry0 = jax.vmap(
-            lambda p: _plane_init(rle, cam, seg, p, rows=32 * nw if nw < n_words else rows, K=K)
-        )(part)
+        consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=nw))(
+            part
+        )
         dest = jnp.arange(size, dtype=jnp.int32)[:, None]
 
         def one(c, _=None):
