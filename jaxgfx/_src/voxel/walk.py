@@ -87,10 +87,10 @@ def _project(consts, s, fy):
     return (consts.p_num + consts.q_num * s) / jnp.maximum(consts.hf + s * fy, 1e-9)
 
 
-def _rows_of(a, b):
-    """Rows ``[r0, r1)`` whose centres lie between the coordinates ``a`` and ``b``."""
-    r0 = jnp.ceil(jnp.minimum(a, b) - 0.5).astype(jnp.int32)
-    r1 = jnp.floor(jnp.maximum(a, b) - 0.5).astype(jnp.int32) + 1
+def _rows_of(a, b, margin=0.0):
+    """Rows ``[r0, r1)`` whose centres lie between ``a`` and ``b``, widened by ``margin``."""
+    r0 = jnp.ceil(jnp.minimum(a, b) - 0.5 - margin).astype(jnp.int32)
+    r1 = jnp.floor(jnp.maximum(a, b) - 0.5 + margin).astype(jnp.int32) + 1
     return r0, r1
 
 
@@ -270,7 +270,7 @@ def _free_step(
     e_smin = jnp.maximum(jnp.minimum(jnp.minimum(c0, c1), jnp.minimum(c2, c3)), consts.s_min)
     e_smax = jnp.minimum(jnp.maximum(jnp.maximum(c0, c1), jnp.maximum(c2, c3)), consts.s_max)
     a, b = _project(consts, e_smin, forward[1]), _project(consts, e_smax, forward[1])
-    r0, r1 = _rows_of(jnp.minimum(a, b) - _ROW_EPS, jnp.maximum(a, b) + _ROW_EPS)
+    r0, r1 = _rows_of(a, b, _ROW_EPS)
     r0 = jnp.maximum(r0, carry.lo)
     r1 = jnp.minimum(r1, carry.hi)
     r0, r1 = _once(r0), _once(r1)
