@@ -102,8 +102,11 @@ from jaxgfx._src.voxel.walk import (
     _once,
     _PlaneConsts,
     _PlaneState,
+    _project,
     _row_mask,
+    _rows_of,
     _scene_top,
+    _slopes,
 )
 from jaxgfx.camera import Camera, camera_basis, focal_lengths
 
@@ -209,8 +212,7 @@ def _plane_step(
         ``(state, slots (Ec,), words (Ec, 5))``: the new state and the list slots
         (``K`` for none) and words of the elements drawn in this step.
     """
-    t_far, s_min, s_max, hf = consts.t_far, consts.s_min, consts.s_max, consts.hf
-    p_num, q_num = consts.p_num, consts.q_num
+    t_far = consts.t_far
     L, off, sx, sy, sz = _level_tables(rle)
     E = rle.max_elements
     jE = jnp.arange(E)
@@ -239,17 +241,10 @@ def _plane_step(
     t_o = jnp.maximum(t_out, t_in)
     inv_in, inv_out = 1.0 / t_in, 1.0 / t_o
     # Eq. 4.5: project the element's corners (slopes dy/dt in the plane).
-    c0, c1 = (y_lo - ey) * inv_in, (y_hi - ey) * inv_in
-    c2, c3 = (y_lo - ey) * inv_out, (y_hi - ey) * inv_out
-    e_smin = jnp.maximum(jnp.minimum(jnp.minimum(c0, c1), jnp.minimum(c2, c3)), s_min)
-    e_smax = jnp.minimum(jnp.maximum(jnp.maximum(c0, c1), jnp.maximum(c2, c3)), s_max)
+    e_smin, e_smax = _slopes(consts, y_lo, y_hi, ey, inv_in, inv_out)
     vis = valid & ok & (e_smin <= e_smax)
-    den_lo = jnp.maximum(hf + e_smin * forward[1], 1e-9)
-    den_hi = jnp.maximum(hf + e_smax * forward[1], 1e-9)
-    a_lo = (p_num + q_num * e_smin) / den_lo
-    a_hi = (p_num + q_num * e_smax) / den_hi
-    r0 = jnp.ceil(jnp.minimum(a_lo, a_hi) - 0.5).astype(jnp.int32)
-    r1 = jnp.floor(jnp.maximum(a_lo, a_hi) - 0.5).astype(jnp.int32) + 1
+    # The rows of that slope range; the free step projects a column's span the same way.
+    r0, r1 = _rows_of(_project(consts, e_smin, forward[1]), _project(consts, e_smax, forward[1]))
     # Floating horizon: rows outside [lo, hi) are already drawn.
     r0 = _once(jnp.maximum(r0, lo))
     r1 = _once(jnp.minimum(r1, hi))

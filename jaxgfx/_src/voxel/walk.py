@@ -82,6 +82,20 @@ def _scene_top(rle) -> float:
     return float(max(s[1] << lev for lev, s in enumerate(rle.level_shapes)))
 
 
+def _slopes(consts, y_lo, y_hi, ey, inv_in, inv_out):
+    """Slopes ``(s_min, s_max)`` under which heights ``[y_lo, y_hi]`` are seen over a cell.
+
+    The cell spans horizontal distances ``1 / inv_in`` to ``1 / inv_out`` along the
+    plane; the extreme slopes are at its corners, clipped to the plane's visible
+    slopes (Eq. 4.5's input).  ``s_min > s_max``: not visible.
+    """
+    c0, c1 = (y_lo - ey) * inv_in, (y_hi - ey) * inv_in
+    c2, c3 = (y_lo - ey) * inv_out, (y_hi - ey) * inv_out
+    s_min = jnp.maximum(jnp.minimum(jnp.minimum(c0, c1), jnp.minimum(c2, c3)), consts.s_min)
+    s_max = jnp.minimum(jnp.maximum(jnp.maximum(c0, c1), jnp.maximum(c2, c3)), consts.s_max)
+    return s_min, s_max
+
+
 def _project(consts, s, fy):
     """Ray-buffer coordinate of slope ``s`` in one plane (Eq. 4.5)."""
     return (consts.p_num + consts.q_num * s) / jnp.maximum(consts.hf + s * fy, 1e-9)
@@ -265,10 +279,7 @@ def _free_step(
     inv_in = 1.0 / jnp.maximum(t, _TINY)
     inv_out = 1.0 / jnp.maximum(t_out, jnp.maximum(t, _TINY))
     # Slopes of the column's span [0, y_hi] over the cell, as an element's.
-    c0, c1 = (0.0 - ey) * inv_in, (y_hi - ey) * inv_in
-    c2, c3 = (0.0 - ey) * inv_out, (y_hi - ey) * inv_out
-    e_smin = jnp.maximum(jnp.minimum(jnp.minimum(c0, c1), jnp.minimum(c2, c3)), consts.s_min)
-    e_smax = jnp.minimum(jnp.maximum(jnp.maximum(c0, c1), jnp.maximum(c2, c3)), consts.s_max)
+    e_smin, e_smax = _slopes(consts, 0.0, y_hi, ey, inv_in, inv_out)
     a, b = _project(consts, e_smin, forward[1]), _project(consts, e_smax, forward[1])
     r0, r1 = _rows_of(a, b, _ROW_EPS)
     r0 = jnp.maximum(r0, carry.lo)
