@@ -102,7 +102,6 @@ from jaxgfx._src.voxel.walk import (
     _once,
     _PlaneConsts,
     _PlaneState,
-    _project,
     _row_mask,
     _rows_of,
     _scene_top,
@@ -244,7 +243,7 @@ def _plane_step(
     e_smin, e_smax = _slopes(consts, y_lo, y_hi, ey, inv_in, inv_out)
     vis = valid & ok & (e_smin <= e_smax)
     # The rows of that slope range; the free step projects a column's span the same way.
-    r0, r1 = _rows_of(_project(consts, e_smin, forward[1]), _project(consts, e_smax, forward[1]))
+    r0, r1 = _rows_of(consts, e_smin, e_smax, forward[1])
     # Floating horizon: rows outside [lo, hi) are already drawn.
     r0 = _once(jnp.maximum(r0, lo))
     r1 = _once(jnp.minimum(r1, hi))

@@ -23,9 +23,10 @@ __all__: list[str] = []  # private helpers of traverse.py
 
 _TINY = 1e-6
 # Ray-buffer rows a column span's projection is widened by in the free step's
-# test, for the step's own projection of an element inside the span differing by
-# float rounding (fused differently; ~1e-4 rows at 1024-row columns).  A whole row,
-# as before, let through every cell whose column merely touched an open row.
+# test: an element inside the span has other corner slopes, and their projection
+# may land a rounding error (~1e-4 rows at 1024-row columns) outside the span's.
+# A whole row, as before, let through every cell whose column merely touched an
+# open row.
 _ROW_EPS = 0.01
 
 
@@ -101,8 +102,13 @@ def _project(consts, s, fy):
     return (consts.p_num + consts.q_num * s) / jnp.maximum(consts.hf + s * fy, 1e-9)
 
 
-def _rows_of(a, b, margin=0.0):
-    """Rows ``[r0, r1)`` whose centres lie between ``a`` and ``b``, widened by ``margin``."""
+def _rows_of(consts, s_a, s_b, fy, margin=0.0):
+    """Rows ``[r0, r1)`` of one plane seen under slopes between ``s_a`` and ``s_b`` (Eq. 4.5).
+
+    The rows whose centres lie between the two slopes' ray-buffer coordinates,
+    widened by ``margin`` rows on each side.
+    """
+    a, b = _project(consts, s_a, fy), _project(consts, s_b, fy)
     r0 = jnp.ceil(jnp.minimum(a, b) - 0.5 - margin).astype(jnp.int32)
     r1 = jnp.floor(jnp.maximum(a, b) - 0.5 + margin).astype(jnp.int32) + 1
     return r0, r1
@@ -128,7 +134,7 @@ def _live_rows(consts, ey, t, *, y_top: float, fy):
     tol = 1e-5 * (jnp.abs(s_lo) + jnp.abs(s_hi)) + 1e-7
     s_lo = jnp.maximum(s_lo - tol, consts.s_min)
     s_hi = jnp.minimum(s_hi + tol, consts.s_max)
-    a0, a1 = _rows_of(_project(consts, s_lo, fy), _project(consts, s_hi, fy))
+    a0, a1 = _rows_of(consts, s_lo, s_hi, fy)
     return a0, jnp.where(s_lo <= s_hi, a1, a0)
 
 
@@ -280,8 +286,7 @@ def _free_step(
     inv_out = 1.0 / jnp.maximum(t_out, jnp.maximum(t, _TINY))
     # Slopes of the column's span [0, y_hi] over the cell, as an element's.
     e_smin, e_smax = _slopes(consts, 0.0, y_hi, ey, inv_in, inv_out)
-    a, b = _project(consts, e_smin, forward[1]), _project(consts, e_smax, forward[1])
-    r0, r1 = _rows_of(a, b, _ROW_EPS)
+    r0, r1 = _rows_of(consts, e_smin, e_smax, forward[1], _ROW_EPS)
     r0 = jnp.maximum(r0, carry.lo)
     r1 = jnp.minimum(r1, carry.hi)
     r0, r1 = _once(r0), _once(r1)
