@@ -17,7 +17,10 @@ original mesh, same cameras and run, with depth / hit agreement
 (``ours/embree_*`` = our time / Embree's).  A second table renders 8 bunny
 views batched (loop vs ``vmap`` vs sharded over one host device per core,
 bit-identity checked), and a third scales the instance count (Fig. 4.23 /
-4.30).  Agreement with the per-pixel DDA at near and far cameras is
+4.30): time per frame beside the share of pixels the view covers and the
+elements drawn, against one instance and against 100 (which cover about as
+much of the screen as 1600), with the frames shaded side by side in
+``instances.png``.  Agreement with the per-pixel DDA at near and far cameras is
 ``experiments.rle_quality``'s table.
 
 Usage::
@@ -47,9 +50,10 @@ from experiments.common import DATA, machine
 from jaxgfx import post
 from jaxgfx import raycast as RC
 from jaxgfx.camera import look_at, supersampled
-from jaxgfx.io import atomic_write
+from jaxgfx.io import atomic_write, save_png
 
 render = jax.jit(RC.render_rle)
+shade = jax.jit(post.shade_voxels)
 reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 # The thesis method alone: one plane per border pixel (Eq. 4.4), each pixel
 # reads its nearest ray-buffer texel, no per-pixel re-walk.
@@ -233,6 +237,7 @@ def run(args):
     reps = 1 if quick else 2
     print(f"machine: {machine()}")
     rows, scale_rows, batch_rows = [], [], []
+    figure = []  # (label, shaded frame) of the instance rows, camera 1
     scenes = scene_list(quick)
     has_mesh = any(mesh is not None for _, _, mesh, _, _ in scenes)
     splat_fn = make_splat_fn()
@@ -363,6 +368,13 @@ def run(args):
             out = jax.block_until_ready(fn(cams[0]))
             r["_first"] = time.perf_counter() - t0
             r["el_processed_M"] = round(int(out.stats["elements_processed"]) / 1e6, 3)
+            # What the view shows, for the ratios below: a frame's cost follows its
+            # covered pixels and drawn elements (issue 15 item 3), and more instances
+            # cover more of the screen as well as hide more behind the first.
+            outs = [out] + [fn(cam) for cam in cams[1:]]
+            r["el_rendered_M"] = round(int(out.stats["elements_rendered"]) / 1e6, 3)
+            r["_covered"] = float(np.mean([np.isfinite(np.asarray(o.depth)).mean() for o in outs]))
+            r["covered_pct"] = round(100 * r["_covered"], 1)
             n_splats = n * len(obj.coords)
             r["splat_bytes"] = n_splats * (3 * 4 + 3)
             f_sp = None
@@ -393,11 +405,19 @@ def run(args):
                         t0 = time.perf_counter()
                         jax.block_until_ready(f_sp(cam))
                         t_splat[b][i].append(time.perf_counter() - t0)
-        base = base_cpu = None
+        base = base_cpu = base_cov = None
+        by_count = {x[0]["instances"]: steady(t_ours[b]) for b, x in enumerate(built)}
+        hundred = by_count.get(100)
         for b, (r, _, f_sp) in enumerate(built):
             ours, cpu = steady(t_ours[b]), steady(c_ours[b])
             base = ours if base is None else base
             base_cpu = cpu if base_cpu is None else base_cpu
+            base_cov = r["_covered"] if base_cov is None else base_cov
+            r["covered/1 instance"] = round(r.pop("_covered") / base_cov, 2)
+            if hundred is not None:
+                # 100 and 1600 instances cover about the same pixels (the map's
+                # first rows fill the view): what the instances behind them cost.
+                r["time/100 instances"] = round(ours / hundred, 2)
             r["ours_ms"] = round(1e3 * ours, 1)
             r["ours_cpu_ms"] = round(1e3 * cpu, 1)
             r["cpu/1 instance"] = round(cpu / base_cpu, 2)
@@ -409,6 +429,14 @@ def run(args):
             r["time/1 instance"] = round(ours / base, 2)
             print(json.dumps(r))
             scale_rows.append(r)
+        # The figure: the forest as a user would show it, on its ground (quick: the
+        # bare trees), shaded from the depth buffer as the thesis does (4.5.6).
+        if label == variants[-1 if quick else 1][0]:
+            for r, fn, _ in built:
+                out = fn(cams[0])
+                lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
+                img, _ = post.antialias(lit, out.depth, (2, 1))
+                figure.append((f"{r['instances']} {label}", np.asarray(img)))
     bits_rows = []
     if args.bits_res and (DATA / "meshes").is_dir():
         import trimesh
@@ -433,7 +461,7 @@ def run(args):
             )
             print(json.dumps(r))
             bits_rows.append(r)
-    return rows, batch_rows, scale_rows, bits_rows
+    return rows, batch_rows, scale_rows, bits_rows, figure
 
 
 def main(argv=None) -> int:
@@ -454,7 +482,7 @@ def main(argv=None) -> int:
         # One host device per core (before JAX's backends start) for the sharded
         # batch; every other row runs on device 0 as before.
         jax.config.update("jax_num_cpu_devices", len(os.sched_getaffinity(0)))
-    rows, batch, scale, bits = run(args)
+    rows, batch, scale, bits, figure = run(args)
     h1 = ["scene", "note", "size", "voxels", "bits_per_voxel", "bytes_per_voxel", "el_total_M",
           "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
           "Melem_per_s", "thesis_ms", "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
@@ -463,8 +491,9 @@ def main(argv=None) -> int:
     h2 = ["way", "frames", "size", "ms_per_frame", "speedup_vs_loop", "median_speedup",
           "bit_identical", "same_color", "max_depth_diff"]  # fmt: skip
     h3 = ["scene", "instances", "map", "voxels", "ours_bytes", "splat_bytes", "ours_ms",
-          "time/1 instance", "ours_cpu_ms", "cpu/1 instance", "ours_compile_s",
-          "el_processed_M", "splat_ms", "splat/ours"]  # fmt: skip
+          "time/1 instance", "covered_pct", "covered/1 instance", "time/100 instances",
+          "ours_cpu_ms", "cpu/1 instance", "ours_compile_s", "el_processed_M",
+          "el_rendered_M", "splat_ms", "splat/ours"]  # fmt: skip
     h4 = ["scene", "resolution", "shape", "voxels", "rle_elements_M", "bits_per_voxel",
           "bits_level0_only", "thesis_bits_per_voxel", "bytes_per_voxel_with_color",
           "seconds"]  # fmt: skip
@@ -488,6 +517,13 @@ def main(argv=None) -> int:
         data = dict(machine=machine(), rows=rows, batched=batch, instances=scale, memory=bits)
         with atomic_write(out / "table.json") as tmp:
             tmp.write_text(json.dumps(data, indent=1))
+        if figure:
+            # Side by side, one instance count per panel, 4-pixel gaps.
+            h = figure[0][1].shape[0]
+            gap = np.ones((h, 4, 3), np.float32)
+            panels = [p for _, img in figure for p in (img, gap)][:-1]
+            save_png(out / "instances.png", np.clip(np.concatenate(panels, axis=1), 0, 1))
+            print("instances.png:", ", ".join(label for label, _ in figure))
     return 0
 
 
