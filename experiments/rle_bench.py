@@ -334,6 +334,7 @@ def run(args):
             pad = [-(-n // 32) * 32 for n in bunny.shape]
             padded = RC.Voxels(bunny.coords, bunny.colors, (pad[0], bunny.shape[1], pad[2]))
             variants.append((f"bunnies (R={max(bunny.shape)})", padded))
+    shown = variants[-1 if quick else 1][0]  # in the figure: the ground tiles
     for label, obj in variants:
         # The full mip chain, as in the thesis (4.4.7), as far as instances allow
         # (a tile's x / z size must stay divisible by 2 ** (levels - 1)).
@@ -385,7 +386,7 @@ def run(args):
                 colr = jnp.asarray(np.concatenate([obj.colors] * n), jnp.float32) / 255.0
                 f_sp = lambda cam, a=cen, b=colr: splat_fn(a, b, cam)  # noqa: E731
                 jax.block_until_ready(f_sp(cams[0]))
-            built.append((r, fn, f_sp))
+            built.append((r, fn, f_sp, out))
         # Interleaved rounds: every instance count sees the same machine state,
         # so drift between sections does not skew the time / 1 instance ratios.
         t_ours = [[[] for _ in cams] for _ in built]
@@ -395,7 +396,7 @@ def run(args):
         c_ours = [[[] for _ in cams] for _ in built]
         t_splat = [[[] for _ in cams] for _ in built]
         for _ in range(2 if quick else 5):
-            for b, (_, fn, f_sp) in enumerate(built):
+            for b, (_, fn, f_sp, _) in enumerate(built):
                 for i, cam in enumerate(cams):
                     t0, c0 = time.perf_counter(), time.process_time()
                     jax.block_until_ready(fn(cam))
@@ -406,9 +407,8 @@ def run(args):
                         jax.block_until_ready(f_sp(cam))
                         t_splat[b][i].append(time.perf_counter() - t0)
         base = base_cpu = base_cov = None
-        by_count = {x[0]["instances"]: steady(t_ours[b]) for b, x in enumerate(built)}
-        hundred = by_count.get(100)
-        for b, (r, _, f_sp) in enumerate(built):
+        hundred = next((steady(t) for t, x in zip(t_ours, built) if x[0]["instances"] == 100), None)
+        for b, (r, _, f_sp, _) in enumerate(built):
             ours, cpu = steady(t_ours[b]), steady(c_ours[b])
             base = ours if base is None else base
             base_cpu = cpu if base_cpu is None else base_cpu
@@ -431,9 +431,8 @@ def run(args):
             scale_rows.append(r)
         # The figure: the forest as a user would show it, on its ground (quick: the
         # bare trees), shaded from the depth buffer as the thesis does (4.5.6).
-        if label == variants[-1 if quick else 1][0]:
-            for r, fn, _ in built:
-                out = fn(cams[0])
+        if label == shown:
+            for r, _, _, out in built:
                 lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
                 img, _ = post.antialias(lit, out.depth, (2, 1))
                 figure.append((f"{r['instances']} {label}", np.asarray(img)))
