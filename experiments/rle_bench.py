@@ -19,8 +19,10 @@ views batched (loop vs ``vmap`` vs sharded over one host device per core,
 bit-identity checked), and a third scales the instance count (Fig. 4.23 /
 4.30): time per frame beside the share of pixels the view covers and the
 elements drawn, against one instance and against 100 (which cover about as
-much of the screen as 1600), with the frames shaded side by side in
-``instances.png``.  Agreement with the per-pixel DDA at near and far cameras is
+much of the screen as 1600), at LOD bands of 96 voxels and at
+``lod_distance_for``'s one-pixel bands (``px_lod`` columns), with the one-pixel
+frames and the most instances at 96 shaded side by side in ``instances.png``.
+Agreement with the per-pixel DDA at near and far cameras is
 ``experiments.rle_quality``'s table.
 
 Usage::
@@ -58,7 +60,10 @@ reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 # The thesis method alone: one plane per border pixel (Eq. 4.4), each pixel
 # reads its nearest ray-buffer texel, no per-pixel re-walk.
 THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0, planes_per_voxel=0.0)
-# Mip level 1 starts here (voxels), level l at LOD_DISTANCE * 2^(l-1).
+# Mip level 1 starts here (voxels), level l at LOD_DISTANCE * 2^(l-1): the band
+# length (the thesis's pd, 4.5.4.1) every instance number before session 17 used.
+# In the instance views its level-1 cells span ~8 output pixels (fat far trees); the
+# instance table also times RC.lod_distance_for's ~1-pixel bands (px_lod columns).
 LOD_DISTANCE = 96.0
 
 
@@ -344,10 +349,11 @@ def run(args):
         counts = [1, 4] if quick else [1, 100, 1600]
         w, h = (128, 96) if quick else (512, 384)
         eye = np.array([-0.6 * tx, 1.1 * ty, -0.6 * tz])
-        cams = [
-            supersampled(look_at(eye, eye + [1.0, -0.35, 1.0], 55, w, h, far=1e5), (2, 1)),
-            supersampled(look_at(eye, eye + [1.0, -0.35, 0.7], 55, w, h, far=1e5), (2, 1)),
-        ]
+        views = [look_at(eye, eye + [1.0, -0.35, d], 55, w, h, far=1e5) for d in (1.0, 0.7)]
+        cams = [supersampled(v, (2, 1)) for v in views]
+        # LOD_DISTANCE's mip cells span ~8 output pixels here; this one ~1 (738
+        # voxels at 512x384): the picture a user wants, and its cost.
+        px_lod = float(RC.lod_distance_for(views[0]))
         built = []
         for n in counts:
             k = int(np.ceil(np.sqrt(n)))
@@ -365,6 +371,7 @@ def run(args):
                 ours_bytes=st["bytes_with_color"],
             )
             fn = lambda cam, s=jscene: render(s, cam, lod_distance=LOD_DISTANCE)  # noqa: E731
+            f_px = lambda cam, s=jscene, d=px_lod: render(s, cam, lod_distance=d)  # noqa: E731
             t0 = time.perf_counter()
             out = jax.block_until_ready(fn(cams[0]))
             r["_first"] = time.perf_counter() - t0
@@ -386,27 +393,34 @@ def run(args):
                 colr = jnp.asarray(np.concatenate([obj.colors] * n), jnp.float32) / 255.0
                 f_sp = lambda cam, a=cen, b=colr: splat_fn(a, b, cam)  # noqa: E731
                 jax.block_until_ready(f_sp(cams[0]))
-            built.append((r, fn, f_sp, out))
+            out_px = f_px(cams[0])  # the same program (lod_distance is traced)
+            r["px_lod"] = round(px_lod, 1)
+            r["px_lod_el_processed_M"] = round(int(out_px.stats["elements_processed"]) / 1e6, 3)
+            built.append((r, (fn, f_px), f_sp, out_px))
         # Interleaved rounds: every instance count sees the same machine state,
         # so drift between sections does not skew the time / 1 instance ratios.
         t_ours = [[[] for _ in cams] for _ in built]
+        t_px = [[[] for _ in cams] for _ in built]
         # Process CPU time too: XLA:CPU splits big fused ops over both cores
         # and its idle worker spins, so on this box CPU time runs up to 2x the
         # wall time, and load from other processes disturbs it less.
         c_ours = [[[] for _ in cams] for _ in built]
         t_splat = [[[] for _ in cams] for _ in built]
         for _ in range(2 if quick else 5):
-            for b, (_, fn, f_sp, _) in enumerate(built):
+            for b, (_, (fn, f_px), f_sp, _) in enumerate(built):
                 for i, cam in enumerate(cams):
                     t0, c0 = time.perf_counter(), time.process_time()
                     jax.block_until_ready(fn(cam))
                     t_ours[b][i].append(time.perf_counter() - t0)
                     c_ours[b][i].append(time.process_time() - c0)
+                    t0 = time.perf_counter()
+                    jax.block_until_ready(f_px(cam))
+                    t_px[b][i].append(time.perf_counter() - t0)
                     if f_sp is not None:
                         t0 = time.perf_counter()
                         jax.block_until_ready(f_sp(cam))
                         t_splat[b][i].append(time.perf_counter() - t0)
-        base = base_cpu = base_cov = None
+        base = base_cpu = base_cov = base_px = None
         hundred = next((steady(t) for t, x in zip(t_ours, built) if x[0]["instances"] == 100), None)
         for b, (r, _, f_sp, _) in enumerate(built):
             ours, cpu = steady(t_ours[b]), steady(c_ours[b])
@@ -427,15 +441,23 @@ def run(args):
                 r["splat_ms"] = round(1e3 * t_sp, 1)
                 r["splat/ours"] = round(t_sp / ours, 2)
             r["time/1 instance"] = round(ours / base, 2)
+            px = steady(t_px[b])
+            base_px = px if base_px is None else base_px
+            r["px_lod_ms"] = round(1e3 * px, 1)
+            r["px_lod/1 instance"] = round(px / base_px, 2)
             print(json.dumps(r))
             scale_rows.append(r)
         # The figure: the forest as a user would show it, on its ground (quick: the
-        # bare trees), shaded from the depth buffer as the thesis does (4.5.6).
+        # bare trees), shaded from the depth buffer as the thesis does (4.5.6), at
+        # the pixel LOD, and last the most instances at LOD_DISTANCE (fat far trees).
         if label == shown:
-            for r, _, _, out in built:
+            r_last, (fn_last, _), _, _ = built[-1]
+            coarse = (f"{r_last['instances']} {label}, LOD {LOD_DISTANCE:g}", fn_last(cams[0]))
+            frames = [(f"{r['instances']} {label}", out) for r, _, _, out in built]
+            for name, out in frames + [coarse]:
                 lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
                 img, _ = post.antialias(lit, out.depth, (2, 1))
-                figure.append((f"{r['instances']} {label}", np.asarray(img)))
+                figure.append((name, np.asarray(img)))
     bits_rows = []
     if args.bits_res and (DATA / "meshes").is_dir():
         import trimesh
@@ -492,7 +514,8 @@ def main(argv=None) -> int:
     h3 = ["scene", "instances", "map", "voxels", "ours_bytes", "splat_bytes", "ours_ms",
           "time/1 instance", "covered_pct", "covered/1 instance", "time/100 instances",
           "ours_cpu_ms", "cpu/1 instance", "ours_compile_s", "el_processed_M",
-          "el_rendered_M", "splat_ms", "splat/ours"]  # fmt: skip
+          "el_rendered_M", "px_lod", "px_lod_ms", "px_lod/1 instance", "px_lod_el_processed_M",
+          "splat_ms", "splat/ours"]  # fmt: skip
     h4 = ["scene", "resolution", "shape", "voxels", "rle_elements_M", "bits_per_voxel",
           "bits_level0_only", "thesis_bits_per_voxel", "bytes_per_voxel_with_color",
           "seconds"]  # fmt: skip

@@ -21,7 +21,8 @@ A reader's table of contents: thesis section -> function (implementation in
     (Tables 4.1, 4.2), :func:`place_instances` (shared columns on a tile grid),
     :func:`share_columns` (copies at any position share their column tails), :func:`as_jax`, and
     :func:`empty_space_distance` (not in the thesis) (``encode``).
-4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)``.
+4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)``;
+    :func:`lod_distance_for` (the band length for a cell size on screen).
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
     :func:`check_camera_outside` (``render``).
@@ -85,6 +86,7 @@ from jaxgfx._src.voxel.render import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outside
 from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
+from jaxgfx._src.voxel.render import lod_distance_for as lod_distance_for
 from jaxgfx._src.voxel.render import render_rle as render_rle
 from jaxgfx._src.voxel.texels import traverse_plane as traverse_plane
 from jaxgfx._src.voxel.texels import traverse_planes as traverse_planes
@@ -154,6 +156,7 @@ __all__ = [
     "RenderSettings",
     "RenderOutput",
     "render_rle",
+    "lod_distance_for",
     "default_num_planes",
     "default_max_steps",
     "check_camera_outside",

@@ -239,6 +239,29 @@ def test_lod_level_matches_downsampled_reference(scene):
     assert agree.sum() / union.sum() >= 0.9
 
 
+@pytest.mark.parametrize("pixels", [1.0, 2.5])
+def test_lod_distance_for_sizes_a_band_start_cell_in_pixels(pixels):
+    # Where each band starts (lod * 2 ** (l - 1)) a cell of 2 ** l voxels, across
+    # the view axis, projects to `pixels` pixels along the larger focal length.
+    eye = np.array([5.0, 7.0, 3.0])
+    for cam, axis in [
+        (look_at(eye, eye + [0, 0, 1], fov=50, width=W, height=H), 1),
+        (supersampled(look_at(eye, eye + [0, 0, 1], fov=50, width=W, height=H), (2, 1)), 0),
+    ]:
+        lod = float(RC.lod_distance_for(cam, pixels))
+        for level in (1, 3):
+            d, size = lod * 2 ** (level - 1), 2.0**level
+            ends = eye + np.array([[0, 0, d], [0, 0, d]]) + np.eye(3)[axis] * [[0], [size]]
+            xy, _ = project(cam, jnp.asarray(ends, jnp.float32))
+            assert abs(float(xy[1, axis] - xy[0, axis])) == pytest.approx(pixels, rel=1e-4)
+    batch = stack_cameras([cam, dataclasses.replace(cam, fov_y=cam.fov_y / 2)])
+    both = jax.jit(jax.vmap(lambda c: RC.lod_distance_for(c, pixels)))(batch)
+    assert both.shape == (2,) and float(both[1]) > float(both[0])
+    for bad, err in [(0.0, ValueError), (-1.0, ValueError), ("1", TypeError)]:
+        with pytest.raises(err, match="pixels"):
+            RC.lod_distance_for(cam, bad)
+
+
 def _relief(n=80, h=20):
     """A height field whose every column differs: 1-voxel ledges everywhere."""
     rng = np.random.default_rng(0)

@@ -334,7 +334,8 @@ def register(subparsers) -> None:
     r.add_argument("--levels", type=positive_int, default=1, help="mip levels (LOD)")
     r.add_argument("--lod", type=bounded_float(0.0, math.inf), default=0.0,
                    help="distance where mip level 1 starts, level l at lod * 2^(l-1) "
-                   "(0: level 0 only)")  # fmt: skip
+                   "(0: level 0 only; 2 x the focal length in pixels keeps mip cells "
+                   "about a pixel wide: jaxgfx.raycast.lod_distance_for)")  # fmt: skip
     r.add_argument("--refine", type=nonnegative_int, default=16,
                    help="exact re-walk steps for pixels whose ray met no sampled voxel "
                    "(0: off)")  # fmt: skip
