@@ -393,7 +393,7 @@ def run(args):
                 colr = jnp.asarray(np.concatenate([obj.colors] * n), jnp.float32) / 255.0
                 f_sp = lambda cam, a=cen, b=colr: splat_fn(a, b, cam)  # noqa: E731
                 jax.block_until_ready(f_sp(cams[0]))
-            out_px = f_px(cams[0])  # the same program (lod_distance is traced)
+            out_px = f_px(cams[0])  # the same program: lod_distance is traced
             r["px_lod"] = round(px_lod, 1)
             r["px_lod_el_processed_M"] = round(int(out_px.stats["elements_processed"]) / 1e6, 3)
             built.append((r, (fn, f_px), f_sp, out_px))

@@ -90,13 +90,14 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
     :func:`render_rle` switches to mip level ``l`` (cells of ``2 ** l`` voxels) at
     ``lod_distance * 2 ** (l - 1)``, so a cell at the start of its band spans
     ``2 f / lod_distance`` pixels at every level (``f`` the focal length in
-    pixels): this returns ``2 max(fx, fy) / pixels``, measured on the view axis
-    (toward the corners a cell is nearer along the axis, up to ``1 / cos`` of the
-    corner ray's angle larger).  The thesis leaves its band length ``pd`` a free
-    constant (4.5.4.1); a shorter one (e.g. 96 voxels for a 512x384, 55 degree
-    view, where level-1 cells span 8 pixels) makes far instances cheap but fat,
-    with a one-voxel step where the bands meet.  For a supersampled camera pass
-    the original view, or ``pixels`` = the factor, to count output pixels.
+    pixels): this returns ``2 max(fx, fy) / pixels``.  That holds on the view
+    axis; toward the screen's corners a cell at the same horizontal distance can
+    be up to ``1 / cos`` of the corner ray's angle larger on screen.  The thesis
+    leaves its band length ``pd`` a free constant (4.5.4.1); a short one (96
+    voxels for a 512x384, 55 degree view, where level-1 cells span 8 pixels)
+    makes far instances cheap but fat, with a one-voxel step where the bands
+    meet.  For a supersampled camera pass the original view, or ``pixels`` = the
+    factor, to count output pixels.
 
     Args:
         cam: the camera (batched cameras give a batch of distances).
