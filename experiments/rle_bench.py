@@ -199,6 +199,13 @@ def steady(times_per_camera) -> float:
     return float(np.mean([min(t) for t in times_per_camera]))
 
 
+def clock(fn, cam) -> float:
+    """Seconds of one frame, waited for."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(cam))
+    return time.perf_counter() - t0
+
+
 def timed(fn, cams, repeats=1):
     """(first-call seconds, steady seconds per frame, last output).
 
@@ -207,12 +214,7 @@ def timed(fn, cams, repeats=1):
     t0 = time.perf_counter()
     out = jax.block_until_ready(fn(cams[0]))
     first = time.perf_counter() - t0
-    times = [[] for _ in cams]
-    for _ in range(repeats):
-        for i, cam in enumerate(cams):
-            t0 = time.perf_counter()
-            out = jax.block_until_ready(fn(cam))
-            times[i].append(time.perf_counter() - t0)
+    times = [[clock(fn, cam) for _ in range(repeats)] for cam in cams]
     return first, steady(times), out
 
 
@@ -396,7 +398,7 @@ def run(args):
             out_px = f_px(cams[0])  # the same program: lod_distance is traced
             r["px_lod"] = round(px_lod, 1)
             r["px_lod_el_processed_M"] = round(int(out_px.stats["elements_processed"]) / 1e6, 3)
-            built.append((r, (fn, f_px), f_sp, out_px))
+            built.append((r, (fn, f_px), f_sp, (out, out_px)))
         # Interleaved rounds: every instance count sees the same machine state,
         # so drift between sections does not skew the time / 1 instance ratios.
         t_ours = [[[] for _ in cams] for _ in built]
@@ -409,24 +411,18 @@ def run(args):
         for _ in range(2 if quick else 5):
             for b, (_, (fn, f_px), f_sp, _) in enumerate(built):
                 for i, cam in enumerate(cams):
-                    t0, c0 = time.perf_counter(), time.process_time()
-                    jax.block_until_ready(fn(cam))
-                    t_ours[b][i].append(time.perf_counter() - t0)
+                    c0 = time.process_time()
+                    t_ours[b][i].append(clock(fn, cam))
                     c_ours[b][i].append(time.process_time() - c0)
-                    t0 = time.perf_counter()
-                    jax.block_until_ready(f_px(cam))
-                    t_px[b][i].append(time.perf_counter() - t0)
+                    t_px[b][i].append(clock(f_px, cam))
                     if f_sp is not None:
-                        t0 = time.perf_counter()
-                        jax.block_until_ready(f_sp(cam))
-                        t_splat[b][i].append(time.perf_counter() - t0)
-        base = base_cpu = base_cov = base_px = None
+                        t_splat[b][i].append(clock(f_sp, cam))
+        # Ratios against the first row (one instance).
+        base, base_cpu, base_px = steady(t_ours[0]), steady(c_ours[0]), steady(t_px[0])
+        base_cov = built[0][0]["_covered"]
         hundred = next((steady(t) for t, x in zip(t_ours, built) if x[0]["instances"] == 100), None)
         for b, (r, _, f_sp, _) in enumerate(built):
             ours, cpu = steady(t_ours[b]), steady(c_ours[b])
-            base = ours if base is None else base
-            base_cpu = cpu if base_cpu is None else base_cpu
-            base_cov = r["_covered"] if base_cov is None else base_cov
             r["covered/1 instance"] = round(r.pop("_covered") / base_cov, 2)
             if hundred is not None:
                 # 100 and 1600 instances cover about the same pixels (the map's
@@ -442,7 +438,6 @@ def run(args):
                 r["splat/ours"] = round(t_sp / ours, 2)
             r["time/1 instance"] = round(ours / base, 2)
             px = steady(t_px[b])
-            base_px = px if base_px is None else base_px
             r["px_lod_ms"] = round(1e3 * px, 1)
             r["px_lod/1 instance"] = round(px / base_px, 2)
             print(json.dumps(r))
@@ -451,10 +446,10 @@ def run(args):
         # bare trees), shaded from the depth buffer as the thesis does (4.5.6), at
         # the pixel LOD, and last the most instances at LOD_DISTANCE (fat far trees).
         if label == shown:
-            r_last, (fn_last, _), _, _ = built[-1]
-            coarse = (f"{r_last['instances']} {label}, LOD {LOD_DISTANCE:g}", fn_last(cams[0]))
-            frames = [(f"{r['instances']} {label}", out) for r, _, _, out in built]
-            for name, out in frames + [coarse]:
+            r_last, _, _, (coarse, _) = built[-1]
+            frames = [(f"{r['instances']} {label}", px_out) for r, _, _, (_, px_out) in built]
+            frames.append((f"{r_last['instances']} {label}, LOD {LOD_DISTANCE:g}", coarse))
+            for name, out in frames:
                 lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
                 img, _ = post.antialias(lit, out.depth, (2, 1))
                 figure.append((name, np.asarray(img)))
