@@ -25,7 +25,7 @@ A reader's table of contents: thesis section -> function (implementation in
     :func:`lod_distance_for` (the band length for a cell size on screen).
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
-    :func:`check_camera_outside` (``render``).
+    :func:`default_pool_size`, :func:`check_camera_outside` (``render``).
 4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3) (``planes``).
 4.5.2 Concentric planes: :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
 4.5.3 Plane parameters: :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
@@ -86,6 +86,7 @@ from jaxgfx._src.voxel.render import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outside
 from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
+from jaxgfx._src.voxel.render import default_pool_size as default_pool_size
 from jaxgfx._src.voxel.render import lod_distance_for as lod_distance_for
 from jaxgfx._src.voxel.render import render_rle as render_rle
 from jaxgfx._src.voxel.texels import traverse_plane as traverse_plane
@@ -159,6 +160,7 @@ __all__ = [
     "lod_distance_for",
     "default_num_planes",
     "default_max_steps",
+    "default_pool_size",
     "check_camera_outside",
     "vanishing_point",
     "Segments",

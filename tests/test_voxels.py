@@ -557,6 +557,7 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert line["lit"] is False and len(line["camera"].split(",")) == 5
     assert main(argv) == 0
+    assert "warning" not in capsys.readouterr().err
     lit = iio.imread(png)
     depth = np.load(dep)
     # (The reference DDA hits 8.3 % of this small frame; render_rle 8.6 %.)
@@ -565,6 +566,17 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     )
     hit = np.isfinite(depth)
     assert np.all(lit[~hit] == 0) and np.abs(lit[hit].astype(int) - unlit[hit]).mean() > 5
+    # A pool too small for the frame: the lost elements are counted and told on stderr with
+    # a --pool-size that fits, and that size gives the whole frame back.
+    assert main(argv + ["--pool-size", "16"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out.strip().splitlines()[-1])["buffer_overflow"] > 0
+    assert np.isfinite(np.load(dep)).sum() < hit.sum()
+    fits = cap.err.split("--pool-size ")[1].split()[0]
+    assert main(argv + ["--pool-size", fits]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out.strip().splitlines()[-1])["buffer_overflow"] == 0
+    assert "warning" not in cap.err and np.array_equal(np.load(dep), depth)
     # 2x1 AA: the same view on pixels half as wide, averaged back to --size.
     assert main(argv + ["--aa", "2x1", "--reference", "--unlit"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["aa"] == "2x1"

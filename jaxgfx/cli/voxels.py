@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -198,6 +199,26 @@ def frame_voxels(vox, fov: float, width: int, height: int) -> list[float]:
     return [*(round(float(v), 3) for v in eye), yaw, pitch]
 
 
+def warn_pool_overflow(overflow: int, settings, cam) -> None:
+    """Tells on stderr that a frame lost elements to a full pool, and the --pool-size that fits.
+
+    The renderer drops the farthest drawn elements past its static pool and counts them
+    (``stats["buffer_overflow"]``); the frame then misses part of the scene.
+    """
+    if overflow <= 0:
+        return
+    from jaxgfx import raycast as RC
+
+    pool = settings.pool_size or RC.default_pool_size(cam.width, cam.height, settings.oversample)
+    # A quarter more than this frame drew, so a nearby view fits too; whole multiples of 1024.
+    fits = -(-(pool + overflow) * 5 // 4 // 1024) * 1024
+    print(
+        f"warning: {overflow} drawn elements did not fit the frame's pool of {pool}, so part "
+        f"of the scene is missing from the image; rerun with --pool-size {fits}",
+        file=sys.stderr,
+    )
+
+
 def run_render_voxels(args) -> int:
     """Renders a saved voxel scene to a PNG (and optionally a depth .npy)."""
     out_png = check_out_file("--out", args.out, (".png",))
@@ -236,6 +257,7 @@ def run_render_voxels(args) -> int:
             neighbors=0 if args.thesis else 1,
             # The thesis's fixed per-pixel plane spacing (no distance-driven planes).
             planes_per_voxel=0.0 if args.thesis else RC.RenderSettings().planes_per_voxel,
+            pool_size=args.pool_size,
         )
         out = fn(
             RC.as_jax(rle),
@@ -244,6 +266,7 @@ def run_render_voxels(args) -> int:
             lod_distance=args.lod if args.lod > 0 else jnp.inf,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
+        warn_pool_overflow(stats["buffer_overflow"], settings, cam)
     color = out.color
     if not args.unlit:
         # Lit on the supersampled frame, before it is averaged back (4.5.6).
@@ -342,6 +365,10 @@ def register(subparsers) -> None:
     r.add_argument("--oversample", type=bounded_float(0.0, math.inf, open_interval=True),
                    default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
+    r.add_argument("--pool-size", type=positive_int, default=None,
+                   help="drawn elements kept per frame (default 3 x oversample x W x H at "
+                   "the --aa grid); a frame that needs more loses its farthest elements and "
+                   "says so on stderr")  # fmt: skip
     r.add_argument("--thesis", action="store_true",
                    help="the thesis method alone: 1 plane per border pixel at any "
                    "distance, nearest texel, no re-walk")  # fmt: skip

@@ -34,6 +34,7 @@ __all__ = [
     "RenderSettings",
     "default_num_planes",
     "default_max_steps",
+    "default_pool_size",
     "render_rle",
     "lod_distance_for",
     "check_camera_outside",
@@ -77,6 +78,17 @@ def default_num_planes(
         else int(math.ceil(planes_per_voxel * (scene_shape[0] + scene_shape[2])))
     )
     return int(math.ceil(2 * (width + height) * oversample)) + extra + 64
+
+
+def default_pool_size(width: int, height: int, oversample: float = 1.0) -> int:
+    """Static element pool of a frame: ``3 oversample W H`` drawn elements (all planes' lists).
+
+    Each drawn element is the first writer of at least one ray-buffer texel, and a frame
+    has about ``oversample W H`` texels (up to ~2.5x that with the vanishing point on
+    screen), so this holds every frame measured here; ``stats["buffer_overflow"]`` says by
+    how much a frame missed (its farthest elements are dropped).
+    """
+    return int(math.ceil(3 * oversample * width * height))
 
 
 def default_max_steps(rle) -> int:
@@ -138,7 +150,8 @@ class RenderSettings:
         buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
             see ``stats["buffer_overflow"]``.
         pool_size: drawn elements kept per frame, all planes' lists back to back
-            (None: ``3 oversample W H``); see ``stats["buffer_overflow"]``.  A frame
+            (None: :func:`default_pool_size`, ``3 oversample W H``); see
+            ``stats["buffer_overflow"]``.  A frame
             has about ``oversample W H`` ray-buffer texels, up to about ``2.5
             oversample W H`` with the vanishing point on screen, and each drawn
             element is the first writer of at least one: a terrain seen from
@@ -326,7 +339,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         elements_per_step=elements_per_step,
         short_rows=cam.height,
         pool_size=(
-            int(math.ceil(3 * oversample * cam.width * cam.height))
+            default_pool_size(cam.width, cam.height, oversample)
             if s.pool_size is None
             else s.pool_size
         ),
