@@ -451,19 +451,20 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene, monkeypatch):
     @jax.jit
     def both(rle, cam, seg):
         tex, els, _ = RC.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
-        pool, start, drawn, cov, st = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
+        pool, start, drawn, cov, first, st = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
         small = RC.traverse_lists(rle, cam, seg, jnp.arange(P), pool_size=100, free_steps=0, **kw)
         # Columns of 128 rows (4 words; W = 96 needs 3), 3 for the top / bottom.
         kw_split = dict(kw, rows=128)
         split = RC.traverse_lists(rle, cam, seg, jnp.arange(P), short_rows=H, **kw_split)
         a = RC.warp_ray_buffer(rle, cam, seg, tex, els)
-        b = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
+        b = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, first, tile=16)
+        b0 = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
         return (
-            a,
-            b,
+            (a, b, b0),
+            first,
             jnp.sum(drawn),
             jnp.sum(small[2]),
-            jnp.sum(small[4][:, 3]),
+            jnp.sum(small[5][:, 3]),
             pool,
             cov,
             st,
@@ -473,22 +474,38 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene, monkeypatch):
             drawn,
         )
 
-    a, b, n, kept, lost, pool, cov, st, small, split, start, drawn = both(rle, cam, seg)
+    (a, b, b0), first, n, kept, lost, pool, cov, st, small, split, start, drawn = both(
+        rle, cam, seg
+    )
     lists = lambda p, s, d: [np.asarray(p)[:, a : a + b] for a, b in zip(s, d)]  # noqa: E731
     for got, want in zip(lists(*(split[i] for i in (0, 1, 2))), lists(pool, start, drawn)):
         np.testing.assert_array_equal(got, want)
-    for i, want in ((2, drawn), (4, st)):
+    for i, want in ((2, drawn), (5, st)):
         np.testing.assert_array_equal(np.asarray(split[i]), np.asarray(want))
     np.testing.assert_array_equal(np.asarray(split[3])[:, :3], np.asarray(cov))
-    assert not np.asarray(split[3])[:, 3].any()
+    np.testing.assert_array_equal(np.asarray(split[4])[:, :3], np.asarray(first))
+    assert not np.asarray(split[3])[:, 3].any() and (np.asarray(split[4])[:, 3] == 2**31 - 1).all()
     np.testing.assert_array_equal(np.asarray(small[0]), np.asarray(pool)[:, :100])
     np.testing.assert_array_equal(np.asarray(small[3]), np.asarray(cov))
+    np.testing.assert_array_equal(np.asarray(small[4]), np.asarray(first))
     # ... while the default decodes fewer columns (it passes the hidden ones).
-    assert np.asarray(st)[:, 1].sum() < np.asarray(small[4])[:, 1].sum()
+    assert np.asarray(st)[:, 1].sum() < np.asarray(small[5])[:, 1].sum()
+    # Each coverage word's first drawing entry: the first of its plane's list whose
+    # rows [r0, r1) meet the word (a loop over the lists), none for an empty word.
+    want = np.full(np.asarray(first).shape, 2**31 - 1)
+    for p, rows in enumerate(lists(pool, start, drawn)):
+        for e, w in reversed(list(enumerate(rows[0]))):
+            r0, r1 = w & 0xFFFF, w >> 16
+            want[p, r0 >> 5 : ((r1 - 1) >> 5) + 1] = e
+    np.testing.assert_array_equal(np.asarray(first), want)
+    assert (want < 2**31 - 1).sum() > 50
     assert int(n) > 200 and 0.1 < np.isfinite(np.asarray(a[1])).mean() < 0.5
     np.testing.assert_array_equal(np.asarray(a[0]), np.asarray(b[0]))
     np.testing.assert_array_equal(np.asarray(a[2]), np.asarray(b[2]))
     np.testing.assert_allclose(np.asarray(a[1]), np.asarray(b[1]), rtol=1e-6)
+    # The search started at the word's first entry finds the same writers.
+    for x, y in zip(b, b0):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert int(kept) == 100 and int(lost) == int(n) - 100
 
 

@@ -33,6 +33,7 @@ __all__ = [
     "HALF_BITS",
     "HALF_MASK",
     "HALF_LIMIT",
+    "NO_ENTRY",
     "IZ_BITS",
     "pack_drawn",
     "unpack_drawn_rows",
@@ -74,6 +75,7 @@ WORD_Z_LEVEL = 4  # map cell z | level << IZ_BITS
 HALF_BITS = 16
 HALF_MASK = (1 << HALF_BITS) - 1  # 0xFFFF
 HALF_LIMIT = 1 << (HALF_BITS - 1)
+NO_ENTRY = 2**31 - 1  # no list entry (a word no element drew in, a row without writer)
 """Rows and heights must stay below this, so a packed upper half keeps the int32 positive."""
 IZ_BITS = 26
 """Bits of the map cell z in word 4; the level sits above them."""

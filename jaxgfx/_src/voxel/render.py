@@ -327,7 +327,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         levels=rle.levels,
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
-    pool, start, drawn, coverage, stats = traverse_lists(
+    pool, start, drawn, coverage, first, stats = traverse_lists(
         rle,
         cam,
         seg,
@@ -351,7 +351,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         ),
     )
     color, depth, entered = warp_lists(
-        rle, cam, seg, pool, start, drawn, coverage, neighbors=neighbors
+        rle, cam, seg, pool, start, drawn, coverage, first, neighbors=neighbors
     )
     refined = jnp.int32(0)
     if refine_steps > 0:

@@ -87,7 +87,7 @@ def traverse_planes(rle, cam: Camera, seg: Segments, planes: jax.Array, **kw):
         ``n`` = ``rows`` rounded up to a power of two) and the lists and counts
         of :func:`traverse_lists`.
     """
-    pool, start, nbuf, _, stats = traverse_lists(rle, cam, seg, planes, **kw)
+    pool, start, nbuf, _, _, stats = traverse_lists(rle, cam, seg, planes, **kw)
     rows = kw["rows"]
     K = -(-(kw.get("buffer_size") or max(64, rows // 2)) // 8) * 8  # as traverse_lists
     # Each plane's list in its own K slots (zeros past its end), as before the pool.

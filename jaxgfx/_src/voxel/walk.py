@@ -164,6 +164,7 @@ class _PlaneState(NamedTuple):
     lo: jax.Array  # () int32, floating horizon: first row not yet drawn
     hi: jax.Array  # () int32, floating horizon: one past the last row not yet drawn
     cov: jax.Array  # (ceil(rows / 32),) uint32, 1-bit coverage map of the column
+    first: jax.Array  # (ceil(rows / 32),) int32, list entry that first drew in each word
     nbuf: jax.Array  # () int32, elements drawn so far (may exceed K: overflow)
     stats: jax.Array  # (3,) int32, elements in visited columns / processed / drawn
     k: jax.Array  # () int32, elements of the current column already handled

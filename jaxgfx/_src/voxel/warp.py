@@ -14,6 +14,7 @@ import jax.numpy as jnp
 
 from jaxgfx._src.voxel.codec import (
     ELEMENT_WORDS,
+    NO_ENTRY,
     WORD_COLOR,
     WORD_HEIGHTS,
     WORD_ROWS,
@@ -208,6 +209,7 @@ def warp_lists(
     start,
     drawn,
     coverage,
+    first=None,
     *,
     neighbors: int = 1,
     tile: int = 8,
@@ -220,14 +222,19 @@ def warp_lists(
     candidate texels against the planes' 1-bit coverage maps; only the
     ``tile x tile`` screen tiles holding a covered pixel are warped, a batch of
     tiles per loop step.  A candidate texel's writer is found by scanning its
-    plane's list front to back for the first element covering the row (lists
-    are short: each element drew at least one new row), so neither the per-texel
-    index array nor the coverage trees are built.
+    plane's list front to back for the first element covering the row, from the
+    first entry that drew in the row's coverage word when ``first`` is given
+    (a row no entry drew is skipped), so neither the per-texel index array nor
+    the coverage trees are built.  Starting at the word's entry: 0.70-0.78x the
+    warp's time on the R = 256 bunny (512x384 2x1), the same frames.
 
     Args:
         pool, start, drawn, coverage: the lists (``(5, N)`` words, each plane's
             from its ``start``, ``drawn`` long) and the planes' coverage maps
             from :func:`~jaxgfx.raycast.traverse_lists`.
+        first: optional (P, W) int32, each coverage word's first drawing entry
+            (:func:`~jaxgfx.raycast.traverse_lists`); None scans every list from
+            its head.  The same frame either way.
         neighbors: static, as in :func:`warp_ray_buffer`.
         tile: static screen tile side in pixels (speed only).
 
@@ -241,6 +248,7 @@ def warp_lists(
     H, W = cam.height, cam.width
     flat = pool.reshape(-1)
     cov_flat = coverage.reshape(-1)
+    first_flat = None if first is None else first.reshape(-1)
     offs = [0] + [d for d in range(-neighbors, neighbors + 1) if d != 0]
 
     def candidates(px, py):
@@ -281,19 +289,28 @@ def warp_lists(
         origins = jnp.broadcast_to(cam.position, dirs.shape)
         n = jnp.where(row_ok[None], drawn[planes], 0)
         base = start[planes]
-        none = jnp.int32(2**31 - 1)
+        none = jnp.int32(NO_ENTRY)
+        if first is None:
+            j0 = jnp.zeros(n.shape, jnp.int32)
+        else:
+            # A drawn row's writer is at or after its word's first drawing entry;
+            # an undrawn row has none (its scan starts past the list's end).
+            at = planes * n_words + (row >> 5)[None]
+            bit = jnp.take(cov_flat, at, mode="clip") >> (row & 31).astype(jnp.uint32)[None]
+            j0 = jnp.where((bit & 1) != 0, jnp.take(first_flat, at, mode="clip"), n)
 
         # The first list element covering the row (lists run front to back).  The
         # scan stops once no pixel of the batch is still looking, not at the longest
         # list's end (bunny R = 256, 512x384 2x1: 1350 -> 1004 steps a frame).
         def scan_list(state):
-            j, entry, _ = state
+            step, entry, _ = state
+            j = j0 + step
             r0, r1 = unpack_drawn_rows(jnp.take(flat, base + (WORD_ROWS * cap + j), mode="clip"))
-            first = (entry == none) & (j < n) & (r0 <= row) & (row < r1)
-            entry = jnp.where(first, j, entry)
-            return j + 1, entry, jnp.any((entry == none) & (j + 1 < n))
+            found = (entry == none) & (j < n) & (r0 <= row) & (row < r1)
+            entry = jnp.where(found, j, entry)
+            return step + 1, entry, jnp.any((entry == none) & (j + 1 < n))
 
-        init = (jnp.int32(0), jnp.full(n.shape, none), jnp.any(n > 0))
+        init = (jnp.int32(0), jnp.full(n.shape, none), jnp.any(j0 < n))
         entry = jax.lax.while_loop(lambda s: s[2], scan_list, init)[1]
         hit = entry < none
         idx = base + jnp.where(hit, entry, 0)
