@@ -39,3 +39,15 @@ def test_experiment_quick(name, tmp_path):
     for j in js:
         json.loads(j.read_text())
     assert "|" in res.stdout  # printed its table
+
+
+def test_rle_bench_hands_the_peers_the_last_cameras_frame():
+    # rle_bench's Embree peers compare their depth with the frame of the camera they
+    # cast last, so timed() must return that camera's output (session 17's review
+    # returned the first camera's, and the agreement column fell to 0.3-19 %).
+    import jax.numpy as jnp
+
+    from experiments.rle_bench import timed
+
+    first, per_frame, out = timed(lambda c: jnp.float32(c) * 2, [1.0, 2.0, 3.0], repeats=2)
+    assert float(out) == 6.0 and first >= 0.0 and per_frame >= 0.0
