@@ -199,22 +199,34 @@ def frame_voxels(vox, fov: float, width: int, height: int) -> list[float]:
     return [*(round(float(v), 3) for v in eye), yaw, pitch]
 
 
-def warn_pool_overflow(overflow: int, settings, cam) -> None:
-    """Tells on stderr that a frame lost elements to a full pool, and the --pool-size that fits.
+def warn_lost_elements(stats: dict, settings, cam) -> None:
+    """Tells on stderr that a frame lost drawn elements, and the option that keeps them.
 
-    The renderer drops the farthest drawn elements past its static pool and counts them
+    The renderer keeps ``buffer_size`` drawn elements per plane and ``pool_size`` per
+    frame (static sizes), drops the farthest past either and counts them
     (``stats["buffer_overflow"]``); the frame then misses part of the scene.
+
+    Args:
+        stats: the frame's stats as ints (``buffer_overflow``, ``elements_rendered``).
+        settings: the :class:`~jaxgfx.raycast.RenderSettings` it was rendered with.
+        cam: its camera (the ``--aa`` grid).
     """
-    if overflow <= 0:
+    lost, drawn = stats["buffer_overflow"], stats["elements_rendered"]
+    if lost <= 0:
         return
     from jaxgfx import raycast as RC
 
     pool = settings.pool_size or RC.default_pool_size(cam.width, cam.height, settings.oversample)
-    # A quarter more than this frame drew, so a nearby view fits too; whole multiples of 1024.
-    fits = -(-(pool + overflow) * 5 // 4 // 1024) * 1024
+    fixes = []
+    if drawn > pool:
+        # A quarter more than this frame drew, so a nearby view fits too; whole KiB.
+        fixes.append(f"--pool-size {-(-drawn * 5 // 4 // 1024) * 1024}")
+    if lost > max(drawn - pool, 0):
+        # Each drawn element covers at least one new row of its plane: one per row fits.
+        fixes.append(f"--buffer-size {max(cam.width, cam.height)}")
     print(
-        f"warning: {overflow} drawn elements did not fit the frame's pool of {pool}, so part "
-        f"of the scene is missing from the image; rerun with --pool-size {fits}",
+        f"warning: {lost} of the {drawn} drawn elements did not fit the frame's lists, so "
+        f"part of the scene is missing from the image; rerun with {' '.join(fixes)}",
         file=sys.stderr,
     )
 
@@ -258,6 +270,7 @@ def run_render_voxels(args) -> int:
             # The thesis's fixed per-pixel plane spacing (no distance-driven planes).
             planes_per_voxel=0.0 if args.thesis else RC.RenderSettings().planes_per_voxel,
             pool_size=args.pool_size,
+            buffer_size=args.buffer_size,
         )
         out = fn(
             RC.as_jax(rle),
@@ -266,7 +279,7 @@ def run_render_voxels(args) -> int:
             lod_distance=args.lod if args.lod > 0 else jnp.inf,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
-        warn_pool_overflow(stats["buffer_overflow"], settings, cam)
+        warn_lost_elements(stats, settings, cam)
     color = out.color
     if not args.unlit:
         # Lit on the supersampled frame, before it is averaged back (4.5.6).
@@ -369,6 +382,9 @@ def register(subparsers) -> None:
                    help="drawn elements kept per frame (default 3 x oversample x W x H at "
                    "the --aa grid); a frame that needs more loses its farthest elements and "
                    "says so on stderr")  # fmt: skip
+    r.add_argument("--buffer-size", type=positive_int, default=None,
+                   help="drawn elements kept per plane (default max(64, max(W, H) / 2) at "
+                   "the --aa grid; max(W, H) always suffices); as --pool-size")  # fmt: skip
     r.add_argument("--thesis", action="store_true",
                    help="the thesis method alone: 1 plane per border pixel at any "
                    "distance, nearest texel, no re-walk")  # fmt: skip
