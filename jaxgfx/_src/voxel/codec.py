@@ -75,10 +75,11 @@ WORD_Z_LEVEL = 4  # map cell z | level << IZ_BITS
 HALF_BITS = 16
 HALF_MASK = (1 << HALF_BITS) - 1  # 0xFFFF
 HALF_LIMIT = 1 << (HALF_BITS - 1)
-NO_ENTRY = 2**31 - 1  # no list entry (a word no element drew in, a row without writer)
 """Rows and heights must stay below this, so a packed upper half keeps the int32 positive."""
 IZ_BITS = 26
 """Bits of the map cell z in word 4; the level sits above them."""
+NO_ENTRY = 2**31 - 1
+"""No list entry: a coverage word no element drew in, a row without a writer."""
 
 
 def pack_drawn(r0, r1, top, bottom, cbase, ix, iz, lev):
