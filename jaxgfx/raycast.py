@@ -1,7 +1,7 @@
 """Chapter 4: rendering static objects as run-length encoded surface voxels.
 
 A reader's table of contents: thesis section -> function (implementation in
-``jaxgfx/_src/voxel/<module>``).
+``jaxgfx/_src/voxel/``).
 
 4.3 Input data -- every input becomes a :class:`Voxels` list of coloured surface voxels
     (``voxset``): :func:`make_voxels`, :func:`dense_to_voxels`, :func:`voxels_to_dense`,
@@ -25,16 +25,14 @@ A reader's table of contents: thesis section -> function (implementation in
     :func:`lod_distance_for` (the band length for a cell size on screen).
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
-    :func:`default_pool_size`, :func:`check_camera_outside` (``render``).
-4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3) (``planes``).
+    :func:`check_camera_outside`.
+4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3).
 4.5.2 Concentric planes: :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
 4.5.3 Plane parameters: :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
-4.5.4 Rasterizing the ray buffer: :func:`traverse_lists` (2-D DDA per plane, Eq. 4.5
-    projection, floating horizon and coverage culling) (``traverse``); the texels
-    resolved by a coverage tree: :func:`traverse_planes`, :func:`traverse_plane` (``texels``).
-4.5.5 Displaying the ray buffer: :func:`ray_buffer_coords`, :func:`warp_ray_buffer`,
-    :func:`warp_lists` (Eq. 4.6); the exact per-pixel re-walk :func:`refine_pixel`,
-    :func:`refine_hits` (not in the thesis) (``warp``).
+4.5.4-4.5.5 The per-plane traversal into ray-buffer lists (2-D DDA per plane, Eq. 4.5
+    projection, floating horizon and coverage culling) and the warp to the screen (Eq. 4.6)
+    are stages of :func:`render_rle`, importable from ``jaxgfx._src.voxel.traverse`` and
+    ``jaxgfx._src.voxel.warp``.
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals): :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
     (exact per-pixel 3-D DDA through the dense grid) (``reference``).
@@ -86,12 +84,8 @@ from jaxgfx._src.voxel.render import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outside
 from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
-from jaxgfx._src.voxel.render import default_pool_size as default_pool_size
 from jaxgfx._src.voxel.render import lod_distance_for as lod_distance_for
 from jaxgfx._src.voxel.render import render_rle as render_rle
-from jaxgfx._src.voxel.texels import traverse_plane as traverse_plane
-from jaxgfx._src.voxel.texels import traverse_planes as traverse_planes
-from jaxgfx._src.voxel.traverse import traverse_lists as traverse_lists
 from jaxgfx._src.voxel.tree import procedural_tree as procedural_tree
 from jaxgfx._src.voxel.volume import isotropic_shape as isotropic_shape
 from jaxgfx._src.voxel.volume import otsu_threshold as otsu_threshold
@@ -107,11 +101,6 @@ from jaxgfx._src.voxel.voxset import make_voxels as make_voxels
 from jaxgfx._src.voxel.voxset import surface_mask as surface_mask
 from jaxgfx._src.voxel.voxset import surface_voxels as surface_voxels
 from jaxgfx._src.voxel.voxset import voxels_to_dense as voxels_to_dense
-from jaxgfx._src.voxel.warp import ray_buffer_coords as ray_buffer_coords
-from jaxgfx._src.voxel.warp import refine_hits as refine_hits
-from jaxgfx._src.voxel.warp import refine_pixel as refine_pixel
-from jaxgfx._src.voxel.warp import warp_lists as warp_lists
-from jaxgfx._src.voxel.warp import warp_ray_buffer as warp_ray_buffer
 
 __all__ = [
     # 4.3 input data: voxel sets
@@ -160,7 +149,6 @@ __all__ = [
     "lod_distance_for",
     "default_num_planes",
     "default_max_steps",
-    "default_pool_size",
     "check_camera_outside",
     "vanishing_point",
     "Segments",
@@ -168,14 +156,6 @@ __all__ = [
     "PlaneParams",
     "plane_parameters",
     "plane_extent",
-    "traverse_lists",
-    "traverse_planes",
-    "traverse_plane",
-    "ray_buffer_coords",
-    "warp_ray_buffer",
-    "warp_lists",
-    "refine_pixel",
-    "refine_hits",
     # reference renderer
     "dda_ray_3d",
     "reference_render",

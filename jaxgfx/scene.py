@@ -1,25 +1,20 @@
 """Render passes joined into one frame with the shared camera (thesis 2.3-2.4).
 
-A frame is the background pass followed by the main sub-passes (terrain,
-static objects, characters), each producing a (colour, depth) frame with the
-same :class:`~jaxgfx.camera.Camera`; :func:`~jaxgfx.compose.composite`
-keeps the nearest sample per pixel.  This module holds the polygon pass used
-for any triangle mesh and the default demo scene.
+A polygon pass (:class:`MeshPass`), a voxel pass (:class:`VoxelPass`) and any function that
+returns a :class:`~jaxgfx.compose.Frame` are drawn with one camera and merged through the
+depth buffer by :func:`render_frame`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
-import jax
-import jax.numpy as jnp
-import numpy as np
-
-from jaxgfx import post, raycast, skin
-from jaxgfx._src.checks import static_field
-from jaxgfx.camera import Camera
-from jaxgfx.compose import Frame, background, composite, fog, lambert
-from jaxgfx.raster import rasterize, validate_mesh, vertex_normals
+from jaxgfx._src.scene import MeshPass as MeshPass
+from jaxgfx._src.scene import VoxelPass as VoxelPass
+from jaxgfx._src.scene import grid_faces as grid_faces
+from jaxgfx._src.scene import merge_mesh_passes as merge_mesh_passes
+from jaxgfx._src.scene import mesh_pass as mesh_pass
+from jaxgfx._src.scene import render_frame as render_frame
+from jaxgfx._src.scene import render_mesh_pass as render_mesh_pass
+from jaxgfx._src.scene import render_voxel_pass as render_voxel_pass
 
 __all__ = [
     "MeshPass",
@@ -28,204 +23,6 @@ __all__ = [
     "render_mesh_pass",
     "render_frame",
     "grid_faces",
-    "CharacterPass",
-    "demo_character_pass",
-    "character_pose",
-    "render_character",
     "VoxelPass",
     "render_voxel_pass",
 ]
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class MeshPass:
-    """A lit triangle mesh for the polygon pass.
-
-    Attributes:
-        vertices: (V, 3) world positions.
-        faces: (F, 3) int32 indices.
-        colors: (V, 3) albedo in [0, 1].
-        normals: (V, 3) unit normals.
-    """
-
-    vertices: jax.Array
-    faces: jax.Array
-    colors: jax.Array
-    normals: jax.Array
-
-
-def mesh_pass(vertices, faces, colors=None, normals=None) -> MeshPass:
-    """Validates a mesh and builds a :class:`MeshPass` (normals computed if absent)."""
-    validate_mesh(vertices, faces, colors)
-    v = jnp.asarray(vertices, jnp.float32)
-    f = jnp.asarray(faces, jnp.int32)
-    c = jnp.full(v.shape, 0.7, jnp.float32) if colors is None else jnp.asarray(colors, jnp.float32)
-    n = vertex_normals(v, f) if normals is None else jnp.asarray(normals, jnp.float32)
-    return MeshPass(v, f, c, n)
-
-
-def merge_mesh_passes(passes) -> MeshPass:
-    """Concatenates several meshes into one pass (one rasterizer call)."""
-    passes = list(passes)
-    if not passes:
-        raise ValueError("merge_mesh_passes: need at least one mesh")
-    offs = np.cumsum([0] + [p.vertices.shape[0] for p in passes[:-1]])
-    return MeshPass(
-        jnp.concatenate([p.vertices for p in passes]),
-        jnp.concatenate([p.faces + int(o) for p, o in zip(passes, offs)]),
-        jnp.concatenate([p.colors for p in passes]),
-        jnp.concatenate([p.normals for p in passes]),
-    )
-
-
-def render_mesh_pass(
-    cam: Camera,
-    mesh: MeshPass,
-    light_dir=(0.4, 0.8, 0.3),
-    ambient: float = 0.3,
-    cull_backfaces: bool = False,
-) -> Frame:
-    """Rasterizes and Lambert-shades one mesh pass -> :class:`Frame`."""
-    attrs = jnp.concatenate([mesh.colors, mesh.normals], axis=-1)
-    out = rasterize(cam, mesh.vertices, mesh.faces, attrs, cull_backfaces=cull_backfaces)
-    color = lambert(out.color[..., 3:], out.color[..., :3], light_dir, ambient)
-    return Frame(color, out.depth)
-
-
-def render_frame(
-    cam: Camera,
-    meshes,
-    extra_frames=(),
-    fog_density: float = 0.0,
-    light_dir=(0.4, 0.8, 0.3),
-) -> Frame:
-    """Background + polygon passes + any other passes' frames, depth-composited.
-
-    Args:
-        cam: the camera shared by all passes.
-        meshes: sequence of :class:`MeshPass` (merged into one rasterizer call).
-        extra_frames: frames of other passes (voxels, terrain) for the same camera.
-        fog_density: exponential fog density per world unit (0 = none).
-        light_dir: direction towards the sun.
-    """
-    frames = [background(cam)]
-    meshes = list(meshes)
-    if meshes:
-        frames.append(render_mesh_pass(cam, merge_mesh_passes(meshes), light_dir))
-    frames.extend(extra_frames)
-    return fog(composite(frames), density=fog_density)
-
-
-def grid_faces(n: int) -> np.ndarray:
-    """Faces (2 (n-1)^2, 3) int32 of an n x n vertex grid in row-major order, two per cell.
-
-    Counter-clockwise seen from +y when rows run along +z and columns along +x.
-    """
-    i = np.arange(n - 1)
-    ii, jj = np.meshgrid(i, i)
-    a = (jj * n + ii).ravel()
-    b, c = a + 1, a + n
-    d = c + 1
-    return np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]).astype(np.int32)
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class CharacterPass:
-    """A spline-skinned character with a deformation style, placed in the world (thesis ch. 5).
-
-    Attributes:
-        rig: the spline rig.
-        binding: sampled-path binding (:func:`jaxgfx.skin.prepare_sampled`).
-        style: the deformation style applied on each vertex's dominant spline.
-        faces: (F, 3) int32 triangles of the bind mesh.
-        color: (3,) albedo.
-        scale: () uniform world scale.
-        offset: (3,) world position of the rig origin.
-        samples: static, spline samples of pass 1.
-        styles: static, which envelopes: 'none', 'radial', 'rect' or 'both'.
-    """
-
-    rig: skin.SplineRig
-    binding: skin.SampledBinding
-    style: skin.Style
-    faces: jax.Array
-    color: jax.Array
-    scale: jax.Array
-    offset: jax.Array
-    samples: int = static_field(32)
-    styles: str = static_field("both")
-
-
-def demo_character_pass(offset=(5.0, 0.0, 4.0), scale: float = 1.4) -> CharacterPass:
-    """The demo character: :func:`jaxgfx.skin.demo_arm` with the muscle style."""
-    arm = skin.demo_arm()
-    return CharacterPass(
-        rig=arm.rig,
-        binding=skin.prepare_sampled(arm.binding, 32),
-        style=skin.muscle_style(),
-        faces=jnp.asarray(arm.faces),
-        color=jnp.array([0.85, 0.62, 0.5], jnp.float32),
-        scale=jnp.float32(scale),
-        offset=jnp.asarray(offset, jnp.float32),
-    )
-
-
-def character_pose(ch: CharacterPass, phase: jax.Array) -> skin.SplinePose:
-    """Animation of the demo arm: bend up to ~115 degrees and twist with ``phase`` in [0, 1)."""
-    ang = 2.0 * jnp.pi * phase
-    return skin.demo_arm_pose(ch.rig, 1.0 - jnp.cos(ang), 0.6 * jnp.sin(ang))
-
-
-def render_character(
-    cam: Camera, ch: CharacterPass, pose: skin.SplinePose, light_dir=(0.4, 0.8, 0.3)
-) -> Frame:
-    """Character pass: sampled spline skinning with the style, then the rasterizer."""
-    pos, nrm = skin.skin_sampled(
-        ch.rig, pose, ch.binding, ch.style, samples=ch.samples, styles=ch.styles
-    )
-    world = pos * ch.scale + ch.offset
-    colors = jnp.broadcast_to(ch.color, world.shape)
-    return render_mesh_pass(cam, MeshPass(world, ch.faces, colors, nrm), light_dir)
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class VoxelPass:
-    """Static objects as run-length-encoded surface voxels placed in the world (thesis ch. 4).
-
-    The ray caster works in voxel units; the pass moves and scales the shared
-    camera into them (same orientation, field of view and resolution), so the
-    depth it returns converts back to world units exactly.
-
-    Attributes:
-        rle: the (possibly instanced) scene, device arrays.
-        origin: (3,) world position of voxel (0, 0, 0).
-        voxel_size: () world units per voxel.
-        num_planes: static ray-buffer planes (None: the renderer's default).
-    """
-
-    rle: raycast.RLEVolume
-    origin: jax.Array
-    voxel_size: jax.Array
-    num_planes: int | None = static_field(None)
-
-
-def render_voxel_pass(cam: Camera, vp: VoxelPass, *, key: jax.Array) -> Frame:
-    """Per-plane RLE ray casting with the shared camera, lit by :func:`jaxgfx.post.shade_voxels`.
-
-    Screen-space normals and ambient occlusion (4.5.6) from the voxel-space depth,
-    with sample radii in voxels; black where nothing was hit.
-    """
-    local = dataclasses.replace(
-        cam,
-        position=(cam.position - vp.origin) / vp.voxel_size,
-        near=cam.near / vp.voxel_size,
-        far=cam.far / vp.voxel_size,
-    )
-    out = raycast.render_rle(
-        vp.rle, local, settings=raycast.RenderSettings(num_planes=vp.num_planes)
-    )
-    color = post.shade_voxels(local, out.color, out.depth, key=key, samples=8)
-    return Frame(color, out.depth * vp.voxel_size)

@@ -200,7 +200,7 @@ def test_stack_rejects_mixed_resolution():
 def test_world_to_camera_matches_rotation_matrix(kw):
     # world_to_camera (multiply-adds) and its (3, V) layout against the rotation matrix
     # of the basis in float64 NumPy.
-    from jaxgfx.camera import world_to_camera, world_to_camera_soa
+    from jaxgfx._src.camera import world_to_camera, world_to_camera_soa
 
     cam = camera_from_degrees(width=32, height=24, **kw)
     pts = np.random.default_rng(0).normal(size=(50, 3)).astype(np.float32) * 10

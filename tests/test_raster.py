@@ -302,7 +302,7 @@ def test_face_batches_give_the_same_visibility():
 def test_shading_in_stripes_equals_whole_frame(monkeypatch):
     # Large frames are resolved and interpolated a stripe of rows at a time; forced here
     # on a small frame (4 stripes of 8 rows): the same images as in one piece.
-    import jaxgfx.raster as raster
+    import jaxgfx._src.raster as raster
 
     mesh = trimesh.creation.icosphere(subdivisions=2)
     v = np.asarray(mesh.vertices, np.float32)

@@ -11,6 +11,7 @@ import pytest
 
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
+from jaxgfx._src.voxel import texels, traverse, warp
 from jaxgfx.camera import (
     camera_basis,
     camera_from_degrees,
@@ -386,8 +387,8 @@ def test_traverse_plane_matches_batch(scene):
     cam = CAMERAS[2][1]
     seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=64)
     kw = dict(rows=W, max_steps=RC.default_max_steps(rle), lod_distance=jnp.inf)
-    tex, els, st = RC.traverse_planes(rle, cam, seg, jnp.arange(4, 8), **kw)
-    one = RC.traverse_plane(rle, cam, seg, jnp.int32(6), **kw)
+    tex, els, st = texels.traverse_planes(rle, cam, seg, jnp.arange(4, 8), **kw)
+    one = texels.traverse_plane(rle, cam, seg, jnp.int32(6), **kw)
     np.testing.assert_array_equal(np.asarray(one[0]), np.asarray(tex[2]))
     np.testing.assert_array_equal(np.asarray(one[1]), np.asarray(els[2]))
     np.testing.assert_array_equal(np.asarray(one[2]), np.asarray(st[2]))
@@ -439,7 +440,6 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene, monkeypatch):
     # columns hidden behind drawn rows (free_steps=0) the lists are the same, and
     # so they are when the top / bottom segments' chunks run with coverage maps of
     # H rows (short_rows; split at any saving here, 1 word, instead of 16).
-    from jaxgfx._src.voxel import traverse
 
     monkeypatch.setattr(traverse, "_SPLIT_WORDS", 1)
     _, rle, _, _ = scene
@@ -450,15 +450,19 @@ def test_warp_lists_equals_the_resolved_texel_warp(scene, monkeypatch):
 
     @jax.jit
     def both(rle, cam, seg):
-        tex, els, _ = RC.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
-        pool, start, drawn, cov, first, st = RC.traverse_lists(rle, cam, seg, jnp.arange(P), **kw)
-        small = RC.traverse_lists(rle, cam, seg, jnp.arange(P), pool_size=100, free_steps=0, **kw)
+        tex, els, _ = texels.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
+        pool, start, drawn, cov, first, st = traverse.traverse_lists(
+            rle, cam, seg, jnp.arange(P), **kw
+        )
+        small = traverse.traverse_lists(
+            rle, cam, seg, jnp.arange(P), pool_size=100, free_steps=0, **kw
+        )
         # Columns of 128 rows (4 words; W = 96 needs 3), 3 for the top / bottom.
         kw_split = dict(kw, rows=128)
-        split = RC.traverse_lists(rle, cam, seg, jnp.arange(P), short_rows=H, **kw_split)
-        a = RC.warp_ray_buffer(rle, cam, seg, tex, els)
-        b = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, first, tile=16)
-        b0 = RC.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
+        split = traverse.traverse_lists(rle, cam, seg, jnp.arange(P), short_rows=H, **kw_split)
+        a = warp.warp_ray_buffer(rle, cam, seg, tex, els)
+        b = warp.warp_lists(rle, cam, seg, pool, start, drawn, cov, first, tile=16)
+        b0 = warp.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
         return (
             (a, b, b0),
             first,

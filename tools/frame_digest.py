@@ -69,7 +69,7 @@ def main(argv=None) -> int:
 
     # 1. The demo frame, every pass and the composite (what `jaxgfx demo` draws).
     build_demo = _mod("jaxgfx.showcase", "jaxgfx.scene").build_demo
-    demo = build_demo(96, 72, key=jax.random.key(0))
+    demo = build_demo(96, 72, key=jax.random.key(0), data=data if data.is_dir() else None)
     frames = []
     for name, fn, fn_args, _ in demo.passes:
         res = jax.block_until_ready(fn(*fn_args))

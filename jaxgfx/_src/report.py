@@ -16,7 +16,7 @@ from typing import Any
 
 import jax
 
-from jaxgfx.io import atomic_write
+from jaxgfx._src.io import atomic_write
 
 __all__ = ["machine", "time_jitted", "markdown_table", "write_table"]
 

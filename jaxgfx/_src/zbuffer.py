@@ -60,8 +60,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.camera import Camera, focal_lengths, world_to_camera_soa
 from jaxgfx._src.frames import stacked_vmap
-from jaxgfx.camera import Camera, focal_lengths, world_to_camera_soa
 
 __all__ = [
     "ClippedTriangles",

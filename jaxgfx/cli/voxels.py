@@ -214,9 +214,9 @@ def warn_lost_elements(stats: dict, settings, cam) -> None:
     lost, drawn = stats["buffer_overflow"], stats["elements_rendered"]
     if lost <= 0:
         return
-    from jaxgfx import raycast as RC
+    from jaxgfx._src.voxel.render import default_pool_size
 
-    pool = settings.pool_size or RC.default_pool_size(cam.width, cam.height, settings.oversample)
+    pool = settings.pool_size or default_pool_size(cam.width, cam.height, settings.oversample)
     fixes = []
     if drawn > pool:
         # A quarter more than this frame drew, so a nearby view fits too; whole KiB.

@@ -38,7 +38,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxgfx._src.camera import Camera, focal_lengths, validate_camera
 from jaxgfx._src.checks import check_float, check_int
+from jaxgfx._src.raster import rasterize
+from jaxgfx._src.silhouette import analytic_antialias, silhouette_edges
 from jaxgfx._src.skin.fit import (
     FitResult,
     _run_optimizer,
@@ -46,9 +49,6 @@ from jaxgfx._src.skin.fit import (
     smoothness_penalty,
 )
 from jaxgfx._src.skin.styles import Style
-from jaxgfx.camera import Camera, focal_lengths, validate_camera
-from jaxgfx.raster import rasterize
-from jaxgfx.silhouette import analytic_antialias, silhouette_edges
 
 __all__ = [
     "ImageTargets",

@@ -132,8 +132,8 @@ def render_levels(
     Returns:
         :class:`jaxgfx.compose.Frame` (Lambert-shaded colour, depth).
     """
-    from jaxgfx.compose import Frame, lambert
-    from jaxgfx.raster import rasterize
+    from jaxgfx._src.compose import Frame, lambert
+    from jaxgfx._src.raster import rasterize
 
     v, n, f, _ = level_arrays(levels, anchor)
     if f.shape[0] == 0:

@@ -155,9 +155,9 @@ def render_terrain(
     Returns:
         :class:`jaxgfx.compose.Frame` (colour with the sky, depth +inf on the sky).
     """
+    from jaxgfx._src.compose import Frame, background
+    from jaxgfx._src.raster import rasterize
     from jaxgfx._src.terrain.display import level_arrays
-    from jaxgfx.compose import Frame, background
-    from jaxgfx.raster import rasterize
 
     if fog_distance is not None:
         fog_distance = check_float("fog_distance", fog_distance)

@@ -386,7 +386,7 @@ def load_kv6(path: str) -> Voxels:
 
 def save_scene(path: str, vox: Voxels) -> None:
     """Writes voxels to an ``.npz`` atomically (temp file in the same folder, then replace)."""
-    from jaxgfx.io import atomic_write
+    from jaxgfx._src.io import atomic_write
 
     with atomic_write(path) as tmp:
         with open(tmp, "wb") as fh:

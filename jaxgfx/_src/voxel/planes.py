@@ -15,8 +15,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxgfx._src.camera import Camera, camera_basis, focal_lengths, screen_to_camera
 from jaxgfx._src.voxel.grid import _safe_div
-from jaxgfx.camera import Camera, camera_basis, focal_lengths, screen_to_camera
 
 __all__ = [
     "Segments",

@@ -9,9 +9,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxgfx._src.camera import Camera, pixel_rays
 from jaxgfx._src.voxel.grid import _dda_entry
 from jaxgfx._src.voxel.render import RenderOutput
-from jaxgfx.camera import Camera, pixel_rays
 
 __all__ = ["dda_ray_3d", "reference_render"]
 

@@ -22,12 +22,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.camera import Camera, focal_lengths
 from jaxgfx._src.checks import check_float, check_int, static_field
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import refine_hits, warp_lists
-from jaxgfx.camera import Camera, focal_lengths
 
 __all__ = [
     "RenderOutput",

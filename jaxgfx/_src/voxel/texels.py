@@ -16,10 +16,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.camera import Camera
 from jaxgfx._src.voxel.codec import WORD_ROWS, unpack_drawn_rows
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.traverse import traverse_lists
-from jaxgfx.camera import Camera
 
 __all__ = ["traverse_planes", "traverse_plane"]
 

@@ -82,6 +82,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgfx._src.camera import Camera, camera_basis, focal_lengths
 from jaxgfx._src.voxel.codec import ELEMENT_WORDS, NO_ENTRY, pack_drawn
 from jaxgfx._src.voxel.grid import (
     _column_head,
@@ -107,7 +108,6 @@ from jaxgfx._src.voxel.walk import (
     _scene_top,
     _slopes,
 )
-from jaxgfx.camera import Camera, camera_basis, focal_lengths
 
 __all__ = ["traverse_lists"]
 

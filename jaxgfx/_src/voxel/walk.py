@@ -15,9 +15,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxgfx._src.camera import Camera, camera_basis
 from jaxgfx._src.voxel.codec import unpack_element
 from jaxgfx._src.voxel.grid import _level_tables, _map_column
-from jaxgfx.camera import Camera, camera_basis
 
 __all__: list[str] = []  # private helpers of traverse.py
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxgfx._src.camera import Camera, camera_basis, pixel_rays, screen_to_camera
 from jaxgfx._src.voxel.codec import (
     ELEMENT_WORDS,
     NO_ENTRY,
@@ -31,7 +32,6 @@ from jaxgfx._src.voxel.grid import (
     _safe_div,
 )
 from jaxgfx._src.voxel.planes import Segments, _sgn_w
-from jaxgfx.camera import Camera, camera_basis, pixel_rays, screen_to_camera
 
 __all__ = ["ray_buffer_coords", "warp_ray_buffer", "warp_lists", "refine_pixel", "refine_hits"]
 

@@ -1,4 +1,4 @@
-"""A small styled character for demos, tests and the CLI: one arm on one spline (thesis ch. 5).
+"""The chapter's example limb: one arm on one spline with a muscle style (thesis ch. 5).
 
 :func:`demo_arm` builds the arm once for every caller (the scene's character pass, ``jaxgfx skin``
 and :func:`demo_character`); :func:`demo_arm_pose` bends and twists it.

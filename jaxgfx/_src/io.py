@@ -1,0 +1,200 @@
+"""File input and output: meshes via trimesh, PNG via imageio, all writes atomic."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "atomic_write",
+    "load_mesh",
+    "up_rotation",
+    "mesh_arrays",
+    "save_png",
+    "save_npy",
+    "save_json",
+    "save_mesh",
+]
+
+MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+UP_AXES = ("x", "y", "z")
+"""The axes a mesh file may call "up"; jaxgfx scenes are y-up."""
+
+
+@contextlib.contextmanager
+def atomic_write(path):
+    """Yields a temporary path beside ``path``; renames it onto ``path`` on success.
+
+    Readers never see a half-written file: either the old file or the complete
+    new one.  On an exception the temporary file is removed.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent
+    )
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        # mkstemp creates 0600 files; give the result the usual umask-based mode.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def up_rotation(up: str = "y") -> np.ndarray:
+    """The rotation (3, 3) that turns a file's ``up`` axis (``'x'``, ``'y'``, ``'z'``) into +y.
+
+    A proper rotation (determinant +1, so faces keep their winding): z-up ``(x, y, z)`` becomes
+    ``(x, z, -y)``, x-up becomes ``(-y, x, z)``, y-up is the identity.  Apply it to vertices as
+    ``v @ R.T`` (and to normals the same way).
+
+    Raises:
+        ValueError: ``up`` is not one of :data:`UP_AXES`.
+    """
+    if up not in UP_AXES:
+        raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")
+    rows = {
+        "x": [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+        "y": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        "z": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]],
+    }
+    return np.asarray(rows[up])
+
+
+def load_mesh(path, up: str = "y"):
+    """Loads a triangle mesh (PLY/OBJ/GLB/GLTF/STL/OFF) with trimesh.
+
+    Scenes (e.g. GLB) are flattened into one mesh with their node transforms.
+
+    Args:
+        path: the mesh file.
+        up: the file's up axis; the mesh is rotated by :func:`up_rotation` so that it points
+            along +y (scanned meshes such as Stanford Lucy are z-up).
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: unknown suffix or ``up``, the file cannot be parsed, or it has no faces.
+    """
+    import trimesh
+
+    rot = up_rotation(up)  # checked before reading a possibly large file
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"mesh file not found: {path}")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise ValueError(
+            f"mesh file {path} has unsupported suffix {path.suffix!r}; use one of {MESH_SUFFIXES}"
+        )
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for broken files
+        raise ValueError(f"mesh file {path} is malformed: {type(exc).__name__}: {exc}") from exc
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise ValueError(f"mesh file {path} holds no triangle mesh (got {type(loaded).__name__})")
+    if len(loaded.faces) == 0 or len(loaded.vertices) == 0:
+        raise ValueError(
+            f"mesh file {path} is empty: {len(loaded.vertices)} vertices, {len(loaded.faces)} faces"
+        )
+    if not np.all(np.isfinite(loaded.vertices)):
+        raise ValueError(f"mesh file {path} has non-finite vertex coordinates")
+    if up != "y":
+        transform = np.eye(4)
+        transform[:3, :3] = rot
+        loaded.apply_transform(transform)
+    return loaded
+
+
+def mesh_arrays(mesh, default_color=(0.75, 0.72, 0.68)):
+    """(vertices (V,3) float32, faces (F,3) int32, colours (V,3) float32) of a trimesh."""
+    v = np.asarray(mesh.vertices, np.float32)
+    f = np.asarray(mesh.faces, np.int32)
+    colors = None
+    visual = getattr(mesh, "visual", None)
+    if visual is not None and getattr(visual, "kind", None) == "vertex":
+        vc = np.asarray(visual.vertex_colors)
+        if vc.shape[0] == len(v):
+            colors = vc[:, :3].astype(np.float32) / 255.0
+    if colors is None:
+        colors = np.broadcast_to(np.asarray(default_color, np.float32), v.shape).copy()
+    return v, f, colors
+
+
+def _as_uint8_image(img) -> np.ndarray:
+    a = np.asarray(img)
+    if a.ndim == 3 and a.shape[-1] == 1:
+        a = a[..., 0]
+    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[-1] not in (3, 4)):
+        raise ValueError(f"image must be (H, W), (H, W, 3) or (H, W, 4), got {a.shape}")
+    if a.shape[0] == 0 or a.shape[1] == 0:
+        raise ValueError(f"image must be non-empty, got {a.shape}")
+    if a.dtype == np.uint8:
+        return a
+    if not np.issubdtype(a.dtype, np.floating):
+        raise TypeError(f"image must be uint8 or float in [0, 1], got {a.dtype}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("image has non-finite values")
+    return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def save_png(path, img) -> Path:
+    """Writes an image (uint8, or float in [0, 1]) as PNG, atomically."""
+    import imageio.v3 as iio
+
+    data = _as_uint8_image(img)
+    path = Path(path)
+    with atomic_write(path) as tmp:
+        iio.imwrite(tmp, data, extension=".png")
+    return path
+
+
+def save_npy(path, arr) -> Path:
+    """Writes a NumPy array atomically."""
+    path = Path(path)
+    with atomic_write(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.save(fh, np.asarray(arr))
+    return path
+
+
+def save_json(path, obj) -> Path:
+    """Writes JSON atomically."""
+    path = Path(path)
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, default=float) + "\n")
+    return path
+
+
+def save_mesh(path, vertices, faces, colors=None) -> Path:
+    """Exports a mesh via trimesh (format from the suffix: .ply, .glb, .obj, .stl), atomically."""
+    import trimesh
+
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in ("ply", "glb", "obj", "stl", "off"):
+        raise ValueError(f"save_mesh: unsupported suffix {path.suffix!r}")
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    vertex_colors = None
+    if colors is not None:
+        vertex_colors = np.asarray(colors)
+        if vertex_colors.dtype != np.uint8:
+            vertex_colors = (np.clip(vertex_colors, 0, 1) * 255 + 0.5).astype(np.uint8)
+    mesh = trimesh.Trimesh(v, f, process=False, vertex_colors=vertex_colors)
+    data = mesh.export(file_type=fmt)
+    if isinstance(data, str):
+        data = data.encode()
+    with atomic_write(path) as tmp:
+        tmp.write_bytes(data)
+    return path
