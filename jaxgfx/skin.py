@@ -70,11 +70,6 @@ from jaxgfx._src.skin.chain import GltfSplineChain as GltfSplineChain
 from jaxgfx._src.skin.chain import gltf_pose as gltf_pose
 from jaxgfx._src.skin.chain import gltf_spline_chain as gltf_spline_chain
 from jaxgfx._src.skin.chain import skin_gltf_chain as skin_gltf_chain
-from jaxgfx._src.skin.limb import DemoArm as DemoArm
-from jaxgfx._src.skin.limb import demo_arm as demo_arm
-from jaxgfx._src.skin.limb import demo_arm_pose as demo_arm_pose
-from jaxgfx._src.skin.limb import demo_character as demo_character
-from jaxgfx._src.skin.limb import limb_mesh as limb_mesh
 from jaxgfx._src.skin.fit import FitResult as FitResult
 from jaxgfx._src.skin.fit import fit_style as fit_style
 from jaxgfx._src.skin.fit import params_to_style as params_to_style
@@ -95,6 +90,11 @@ from jaxgfx._src.skin.gltf import load_gltf_meshes as load_gltf_meshes
 from jaxgfx._src.skin.gltf import load_gltf_skin as load_gltf_skin
 from jaxgfx._src.skin.gltf import sample_animation as sample_animation
 from jaxgfx._src.skin.gltf import trs_matrix as trs_matrix
+from jaxgfx._src.skin.limb import DemoArm as DemoArm
+from jaxgfx._src.skin.limb import demo_arm as demo_arm
+from jaxgfx._src.skin.limb import demo_arm_pose as demo_arm_pose
+from jaxgfx._src.skin.limb import demo_character as demo_character
+from jaxgfx._src.skin.limb import limb_mesh as limb_mesh
 from jaxgfx._src.skin.rig import SplinePose as SplinePose
 from jaxgfx._src.skin.rig import SplineRig as SplineRig
 from jaxgfx._src.skin.rig import attach_children as attach_children

@@ -32,8 +32,8 @@ from jaxgfx._src.compose import background, composite, fog
 from jaxgfx._src.placement import GroundPatch, Placement, column_top, ground_patch
 from jaxgfx._src.scene import MeshPass, VoxelPass, render_mesh_pass, render_voxel_pass
 from jaxgfx._src.skin.chain import gltf_pose, gltf_spline_chain, skin_gltf_chain
-from jaxgfx._src.skin.limb import demo_arm, demo_arm_pose
 from jaxgfx._src.skin.gltf import GltfSkin, load_gltf_skin
+from jaxgfx._src.skin.limb import demo_arm, demo_arm_pose
 from jaxgfx._src.skin.rig import SplinePose, SplineRig
 from jaxgfx._src.skin.sampled import SampledBinding, prepare_sampled, skin_sampled
 from jaxgfx._src.skin.styles import Style, make_style, muscle_style
