@@ -1,45 +1,73 @@
 """Differentiable silhouettes: analytic antialiasing of a rasterized image.
 
-A z-buffer image is piecewise constant in the vertex positions at
-silhouettes: moving an outline edge by less than a pixel changes no pixel
-until a pixel centre is crossed, so the gradient of the image with respect to
-the geometry is zero there.  This pass, after nvdiffrast's antialias
-operation (Laine et al. 2020, "Modular Primitives for High-Performance
-Differentiable Rendering", ACM TOG 39(6), Sec. 3.4), blends each pair of
-neighbouring pixels that see different triangles by the analytic position
-where the silhouette edge of the front triangle crosses the segment between
-the two pixel centres.  The blend weight is a smooth function of the
-projected edge, so the antialiased image has gradients with respect to vertex
-positions and to the camera.
+A z-buffer image is piecewise constant in the vertex positions at silhouettes: moving an outline
+edge by less than a pixel changes no pixel until a pixel centre is crossed, so the gradient of the
+image with respect to the geometry is zero there.  This pass, after nvdiffrast's antialias
+operation (Laine et al. 2020, "Modular Primitives for High-Performance Differentiable Rendering",
+ACM TOG 39(6), Sec. 3.4), blends each pair of neighbouring pixels that see different triangles by
+where the outline of the front surface crosses the segment between the two pixel centres.  The
+result is continuous in the vertices and the camera, and its derivative is the derivative of the
+covered area.
 
-For a pair of pixel centres ``F`` (covered by the front triangle) and ``O``
-(the other pixel), with the edge crossing the segment at ``t`` in ``[0, 1)``
-(``t = 0`` at ``F``):
+**The pair blend.**  For pixel centres ``F`` (covered by the front surface) and ``O`` (the other
+pixel), with the outline crossing the segment at ``t`` in ``[0, 1]`` (``t = 0`` at ``F``):
 
-* ``t > 1/2``: the triangle reaches past the midpoint, ``O`` takes
-  ``t - 1/2`` of ``F``'s colour;
-* ``t < 1/2``: the triangle stops short of it, ``F`` takes ``1/2 - t`` of
-  ``O``'s colour.
+* ``t > 1/2``: the surface reaches past the midpoint, ``O`` takes ``t - 1/2`` of ``F``'s colour;
+* ``t < 1/2``: the surface stops short of it, ``F`` takes ``1/2 - t`` of ``O``'s colour.
 
-Both weights are 0 at the midpoint and 1/2 when the edge reaches a pixel
-centre, where the z-buffer flips that pixel and the neighbouring pair takes
-over with the same value, so the image is continuous as the edge moves.  The
-contributions of a pixel's (up to four) pairs add up, as in nvdiffrast.
+Along one row of a coverage image this makes the row's sum the covered length of its centre
+line exactly: the covered centres count 1 each, and the end pair adds ``t - 1/2``, the distance
+from the last covered pixel's boundary to the crossing.  It is continuous as the outline crosses
+a pixel centre: at ``t -> 1``, ``O`` holds ``1/2`` of ``F``; once the z-buffer flips ``O`` to
+covered, the pair on ``O``'s far side sees the crossing at ``t -> 0`` from ``O``, which keeps
+``1 - 1/2``.
 
-Projected edges are handled in camera space: the edge ``(P, Q)`` and the eye
-span the plane with normal ``P x Q``; a pixel ray ``r`` is on the side
-``sign((P x Q) . r)``, and the crossing along the segment from ray ``r_F`` to
-``r_O`` is linear in that dot product.  This stays exact and finite for edges
-with an endpoint behind the camera (no near-plane clipping is needed), and an
+**Two axes, one edge.**  An outline edge crosses rows and columns alike, and the row blend
+alone, like the column blend alone, already makes up the jump of a pixel that flips.  Both at
+full weight would take it back twice (the image jumps the other way) and double the area's
+derivative.  So each edge's blends are weighted: ``w_x = g_x^2 / (g_x^2 + g_y^2)`` on horizontal
+pairs and ``w_y = 1 - w_x`` on vertical pairs, where ``(g_x, g_y)`` is the gradient of the edge's
+line in pixels (``w_x = 1`` for a vertical edge).  Because ``w_x + w_y = 1``:
+
+* the image is continuous where an edge crosses a pixel centre: the line through that centre
+  crosses all four of its pairs at the centre, so their blends jump by ``-w_x`` and ``-w_y``
+  against the raw ``+1``;
+* moving an edge of length ``L`` by ``d`` along its normal changes its row blends by ``d L`` and
+  its column blends by ``d L``, so the area changes by ``d L``, its true change.
+
+A weight falls to zero (quadratically) along the axis the edge runs along, where the crossing on
+that axis is ill-conditioned.  nvdiffrast gives each edge to one axis (the one more across it);
+that jumps by up to ``1/2`` per pair where an edge turns past 45 degrees or two outline edges on
+either side of 45 degrees meet.  Here the residual jumps are where the crossing passes a
+silhouette vertex, ``|t - 1/2| |w(e_1) - w(e_2)|``, small where the outline turns little.
+
+**Finding the crossing.**  The crossing is on the front surface's outline, which need not be an
+edge of the triangle seen at ``F``: beside a silhouette the surface is seen nearly edge-on and
+its faces are often thinner than a pixel, so the segment from ``F``'s centre leaves its triangle
+through an interior edge.  The segment is followed across interior edges into the adjacent face
+(the faces from :func:`silhouette_edges`), up to ``MAX_HOPS`` faces, until it crosses a silhouette
+edge (the pair blends) or reaches ``O``'s centre (no outline between them).  The walk is discrete
+and carries no gradient; the crossing is then computed from the edge it found, differentiably.
+
+**Gaps and thin parts.**  Where both pixels of a pair are covered, by a near and a far
+surface with a gap between their outlines, the gap shows what is behind both, whose colour no
+pixel holds: given a ``background`` colour, both outlines blend towards it (for a coverage image
+it is 0).  A part thinner than a pixel lying between two empty pixel centres (a tip, a thin
+limb seen from the side) is in no pixel: it appears, with a jump of its width, when it reaches
+a centre.
+
+Projected edges are handled in camera space: the edge ``(P, Q)`` and the eye span the plane with
+normal ``P x Q``; a pixel ray ``r`` is on the side ``sign((P x Q) . r)``, and the crossing along
+the segment from ray ``r_F`` to ``r_O`` is linear in that dot product.  This stays exact and
+finite for edges with an endpoint behind the camera (no near-plane clipping is needed), and an
 edge through the eye simply has no crossing.
 
-An edge of the front triangle is a *silhouette* edge when it is a boundary
-edge (one face) or when the face on its other side folds back: its opposite
-vertex lies on the same side of the edge's eye plane as the front triangle's
-own third vertex (the two faces face opposite ways with respect to the
-camera).  Only silhouette edges blend; the shared edges of a continuous
-surface are left alone, and so are outlines that are not mesh edges: where
-the near or far plane cuts a triangle, and where two surfaces intersect.
+An edge of a face is a *silhouette* edge when it is a boundary edge (one face) or when the face
+on its other side folds back: its far vertex lies on the same side of the edge's eye plane as the
+face's own third vertex (the two faces face opposite ways with respect to the camera).  Only
+silhouette edges blend; the shared edges of a continuous surface are left alone, and so are
+outlines that are not mesh edges: where the near or far plane cuts a triangle, and where two
+surfaces intersect.
 """
 
 from __future__ import annotations
@@ -60,27 +88,35 @@ from jaxgfx._src.raster import RasterOutput, validate_mesh
 __all__ = ["silhouette_edges", "analytic_antialias"]
 
 
-def silhouette_edges(faces) -> np.ndarray:
-    """Edge topology for :func:`analytic_antialias`: the vertex across each face edge.
+def silhouette_edges(faces, vertices=None) -> np.ndarray:
+    """Edge topology for :func:`analytic_antialias`: the same edge seen from the face across.
 
-    Computed once on the host for a mesh (it depends on the faces only, not on
-    the pose or the camera).  Edge ``e`` of face ``f`` runs from
+    Computed once on the host for a mesh (it depends on the faces, and on which vertices share a
+    position, not on the pose or the camera).  Edge ``e`` of face ``f`` runs from
     ``faces[f, e]`` to ``faces[f, (e + 1) % 3]``.
 
     Args:
         faces: (F, 3) integer vertex indices (concrete, not traced).
+        vertices: optional (V, 3) positions (concrete).  Vertices at exactly the same position
+            are then one vertex for the topology: meshes split their vertices where normals or
+            texture coordinates differ (a flat-shaded glTF mesh has three vertices of its own per
+            face), and without welding every such edge would be a boundary, that is, an
+            outline.  Give a pose where split vertices coincide (the bind pose).
 
     Returns:
-        (F, 3) int32: the third vertex of the other face sharing edge ``e`` of
-        face ``f`` (orientation ignored), or -1 when the edge is a boundary
-        edge or is shared by more than two faces (a non-manifold fin is drawn
-        as an outline from every side).
+        (F, 3) int32: for edge ``e`` of face ``f``, the same edge in the other face holding it
+        as ``3 * g + k`` (edge ``k`` of face ``g``), or -1 when the edge is a boundary edge or is
+        shared by more than two faces (a non-manifold fin is drawn as an outline from every
+        side).
 
     Raises:
-        TypeError / ValueError: if ``faces`` is not a concrete (F, 3) integer array.
+        TypeError / ValueError: if ``faces`` is not a concrete (F, 3) integer array, or
+        ``vertices`` is not a concrete (V, 3) array indexed by it.
     """
-    if isinstance(faces, jax.core.Tracer):
-        raise TypeError("faces must be concrete to build silhouette_edges (call it outside jit)")
+    if isinstance(faces, jax.core.Tracer) or isinstance(vertices, jax.core.Tracer):
+        raise TypeError(
+            "faces and vertices must be concrete to build silhouette_edges (call it outside jit)"
+        )
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[-1] != 3:
         raise ValueError(f"faces must have shape (F, 3), got {f.shape}")
@@ -91,8 +127,15 @@ def silhouette_edges(faces) -> np.ndarray:
     if n == 0:
         return out
     a = f.astype(np.int64)
+    if vertices is not None:
+        v = np.asarray(vertices)
+        if v.ndim != 2 or v.shape[-1] != 3:
+            raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
+        if a.min() < 0 or a.max() >= v.shape[0]:
+            raise ValueError(f"faces must index the {v.shape[0]} vertices")
+        # One id per distinct position (+ 0.0 makes -0.0 equal to 0.0 bit for bit).
+        a = np.unique(v + 0.0, axis=0, return_inverse=True)[1].reshape(-1)[a]
     b = np.roll(a, -1, axis=1)  # edge e: faces[:, e] -> faces[:, e + 1]
-    opposite = np.roll(a, -2, axis=1)  # the third vertex of each edge's own face
     lo, hi = np.minimum(a, b).ravel(), np.maximum(a, b).ravel()
     key = lo * (int(a.max()) + 1) + hi
     order = np.argsort(key, kind="stable")
@@ -102,90 +145,201 @@ def silhouette_edges(faces) -> np.ndarray:
     # Manifold edges: exactly two face-edges with the same key, adjacent after sorting.
     pair = start[count == 2]
     e0, e1 = order[pair], order[pair + 1]
-    flat_opp = opposite.ravel()
+    # A face holding one edge twice (a repeated vertex) has no neighbour across it.
+    ok = (e0 // 3 != e1 // 3) & (lo[e0] != hi[e0])
     flat = out.reshape(-1)
-    flat[e0] = flat_opp[e1]
-    flat[e1] = flat_opp[e0]
+    flat[e0[ok]] = e1[ok]
+    flat[e1[ok]] = e0[ok]
     return out
 
 
-def _face_planes(p_cam, faces, opposite):
-    """Per face and edge: the inward normal of the edge's eye plane, and whether it may blend.
+MAX_HOPS = 16
+"""Faces the walk from a pixel's triangle towards its neighbour's centre may cross.
+
+Beside an outline the surface is seen nearly edge-on, so several thin faces can lie between two
+pixel centres; a pair whose outline is further than this many faces away is left unblended.
+"""
+
+# Crossings this far (in pixel steps) past the other pixel's centre still blend, clamped to it:
+# the rasterizer's coverage test and the plane test here round differently.
+_PAST_CENTRE = 1.0 / 16.0
+
+
+def _edge_planes(p_cam, faces, across):
+    """Per face and edge: the inward normal of the edge's eye plane, and where the walk goes next.
 
     Args:
-        p_cam: (V, 3) camera-space vertices; faces (F, 3); opposite (F, 3) from
+        p_cam: (V, 3) camera-space vertices; faces (F, 3); across (F, 3) from
             :func:`silhouette_edges`.
 
     Returns:
-        ``(normal (F, 3 edges, 3), silhouette (F, 3) bool)``; the normal is
-        oriented so that the face's own third vertex has a positive dot product,
-        and is zero for a face seen edge-on (then no pixel is inside).
+        ``(normal (F, 3 edges, 3), onward (F, 3) int32)``.  The normal is oriented so that the
+        face's own third vertex has a positive dot product, and is zero for a face seen edge-on
+        (then no ray is inside).  ``onward`` is the face across the edge, or -1 where the edge
+        is a silhouette edge (boundary, or the face across folds back).
     """
     pts = p_cam[faces]  # (F, 3 corners, 3)
-    normals, sils = [], []
+    other = jnp.maximum(across, 0)
+    # The far vertex of the face across: the corner after the shared edge's end in that face.
+    far = faces[other // 3, (other % 3 + 2) % 3]  # (F, 3)
+    normals, onward = [], []
     for e in range(3):
         p, q, k = pts[:, e], pts[:, (e + 1) % 3], pts[:, (e + 2) % 3]
         n = jnp.cross(p, q)  # normal of the plane through the eye and the edge
         m = jnp.sign(jnp.sum(n * k, -1))[:, None] * n
-        across = p_cam[jnp.maximum(opposite[:, e], 0)]
-        # The neighbour folds back when its far vertex lies on the face's own side.
-        folds = jnp.sum(m * across, -1) >= 0
+        folds = jnp.sum(m * p_cam[far[:, e]], -1) >= 0
         normals.append(m)
-        sils.append((opposite[:, e] < 0) | folds)
-    return jnp.stack(normals, 1), jnp.stack(sils, 1)
+        onward.append(jnp.where((across[:, e] < 0) | folds, -1, other[:, e] // 3))
+    return jnp.stack(normals, 1), jnp.stack(onward, 1).astype(jnp.int32)
 
 
-def _exit(inside, step, sil) -> tuple[jax.Array, jax.Array]:
-    """Where the segment from a pixel centre to a neighbour's leaves the pixel's triangle.
+def _walk_to_outline(normals, onward, face, ray, step):
+    """The silhouette edge the segment from a pixel centre to its neighbour's crosses first.
 
-    Args:
-        inside: (..., 3) per edge, the inward plane normal dotted with the pixel's
-            ray (>= 0 inside the edge).
-        step: (..., 3) its change from this ray to the neighbour's.
-        sil: (..., 3) bool, the edge may blend.
-
-    Returns:
-        ``(t, blend)``: the crossing in [0, 1) (1 when the neighbour is inside
-        all edges) and whether the edge crossed first is a silhouette edge.
-    """
-    best_t = jnp.ones(inside.shape[:-1], inside.dtype)
-    best_sil = jnp.zeros(inside.shape[:-1], bool)
-    for e in range(3):
-        a, d = inside[..., e], step[..., e]
-        cross = (a >= 0) & (a + d < 0)
-        # Double where: the untaken branch divides by 1, so its gradient is finite.
-        t = jnp.where(cross, a / jnp.where(cross, -d, 1.0), 1.0)
-        # The segment leaves the (convex) triangle through the edge it crosses first.
-        take = cross & (t < best_t)
-        best_t = jnp.where(take, t, best_t)
-        best_sil = jnp.where(take, sil[..., e], best_sil)
-    return best_t, best_sil
-
-
-def _pair_deltas(ta, sa, tb, sb, id_a, id_b, depth_a, depth_b, col_a, col_b):
-    """Colour changes of the two pixels of each pair (arrays of pairs, any shape).
+    Follows the segment ``ray + t step`` from ``face`` across interior edges into the faces
+    beyond, up to :data:`MAX_HOPS` faces: in each face it leaves through the edge it crosses
+    outwards first (faces are convex), at the smallest ``t`` beyond its entry.  Discrete: call
+    it on values without gradients.
 
     Args:
-        ta, sa: (...) :func:`_exit` of pixel a's triangle towards b; tb, sb the same from b.
-        id_a, id_b: (...) triangle ids (-1 empty); depth_a, depth_b: (...) depths.
-        col_a, col_b: (..., C) colours.
+        normals: (F, 3, 3) :func:`_edge_planes` normals; onward: (F, 3) its walk table.
+        face: (N,) the starting face (the front pixel's triangle), -1 for no walk.
+        ray, step: (N, 3) the front pixel's ray and the step to the other pixel's.
 
     Returns:
-        ``(delta_a, delta_b)``, each (..., C).
+        ``(face, edge)``, each (N,) int32: the face holding the silhouette edge crossed and the
+        edge's index in it; ``face`` is -1 where the segment reaches the other centre first (no
+        outline between them) or the walk gave up.
     """
-    # The front triangle is the nearer one; an empty pixel is never in front.
-    a_front = (id_a >= 0) & ((id_b < 0) | (depth_a <= depth_b))
-    active = (id_a != id_b) & ((id_a >= 0) | (id_b >= 0))
-    t = jnp.where(a_front, ta, tb)
-    blend = active & jnp.where(a_front, sa, sb) & (t < 1.0)
-    col_f = jnp.where(a_front[..., None], col_a, col_b)
-    col_o = jnp.where(a_front[..., None], col_b, col_a)
-    w_o = jnp.where(blend, jnp.maximum(t - 0.5, 0.0), 0.0)[..., None]
-    w_f = jnp.where(blend, jnp.maximum(0.5 - t, 0.0), 0.0)[..., None]
-    d_f = w_f * (col_o - col_f)
-    d_o = w_o * (col_f - col_o)
-    delta_a = jnp.where(a_front[..., None], d_f, d_o)
-    delta_b = jnp.where(a_front[..., None], d_o, d_f)
+    flat_n = normals.reshape(normals.shape[0], 9)
+    rx, ry, rz = ray[:, 0], ray[:, 1], ray[:, 2]
+    sx, sy, sz = step[:, 0], step[:, 1], step[:, 2]
+
+    def hop(state):
+        k, cur, hit_face, hit_edge = state
+        alive = cur >= 0
+        safe = jnp.maximum(cur, 0)
+        nrm = flat_n[safe]  # (N, 9): one gather per hop
+        nxt_all = onward[safe]
+        t_exit = jnp.full(cur.shape, jnp.inf, nrm.dtype)
+        e_exit = jnp.zeros_like(cur)
+        nxt = jnp.full_like(cur, -1)
+        for e in range(3):
+            mx, my, mz = nrm[:, 3 * e], nrm[:, 3 * e + 1], nrm[:, 3 * e + 2]
+            a = mx * rx + my * ry + mz * rz
+            d = mx * sx + my * sy + mz * sz
+            leaving = d < 0
+            t = jnp.where(leaving, a / jnp.where(leaving, -d, 1.0), jnp.inf)
+            take = t < t_exit
+            t_exit = jnp.where(take, t, t_exit)
+            e_exit = jnp.where(take, e, e_exit)
+            nxt = jnp.where(take, nxt_all[:, e], nxt)
+        hit = alive & (nxt < 0) & (t_exit < 1.0 + _PAST_CENTRE)
+        hit_face = jnp.where(hit, cur, hit_face)
+        hit_edge = jnp.where(hit, e_exit, hit_edge)
+        cur = jnp.where(alive & (nxt >= 0) & (t_exit < 1.0), nxt, -1)
+        return k + 1, cur, hit_face, hit_edge
+
+    def walking(state):
+        return (state[0] < MAX_HOPS) & jnp.any(state[1] >= 0)
+
+    # A while loop that stops when every walk has: most end within two faces.  It carries no
+    # gradient, so reverse mode needs no unrolled copy of it.
+
+    none = jnp.full(face.shape, -1, jnp.int32)
+    state = (jnp.zeros((), jnp.int32), face.astype(jnp.int32), none, jnp.zeros_like(none))
+    _, _, hit_face, hit_edge = jax.lax.while_loop(walking, hop, state)
+    return hit_face, hit_edge
+
+
+def _outline_crossing(normals, onward, focal, face, ray, direction, axis):
+    """Where each segment first crosses its surface's outline, and the blend's weight there.
+
+    Args:
+        normals, onward: :func:`_edge_planes` (normals with gradients).
+        focal: ``(fx, fy)`` focal lengths in pixels.
+        face: (N,) the triangle at the segment's start (-1: none).
+        ray, direction: (N, 3) the start pixel's ray and the step to the other pixel's.
+        axis: 0 for horizontal pairs, 1 for vertical pairs.
+
+    Returns:
+        ``(t, weight)``, each (N,): the crossing in [0, 1] from the start (1 where none) and the
+        weight of its blend along ``axis`` (0 where no outline is crossed).
+    """
+    hit, edge = _walk_to_outline(
+        jax.lax.stop_gradient(normals),
+        onward,
+        face,
+        jax.lax.stop_gradient(ray),
+        jax.lax.stop_gradient(direction),
+    )
+    n = normals[jnp.maximum(hit, 0), edge]  # (N, 3), with gradients
+    a = jnp.sum(n * ray, -1)
+    d = jnp.sum(n * direction, -1)
+    ok = (hit >= 0) & (d < 0)
+    t = jnp.clip(jnp.where(ok, a / jnp.where(ok, -d, 1.0), 1.0), 0.0, 1.0)
+    # The edge's line in pixels: its plane's normal scaled by the pixel steps along x and y.
+    gx, gy = n[:, 0] / focal[0], n[:, 1] / focal[1]
+    g2 = gx * gx + gy * gy
+    along = gx * gx if axis == 0 else gy * gy
+    weight = jnp.where(ok, along / jnp.where(ok, g2, 1.0), 0.0)
+    return t, weight
+
+
+def _blend(t, weight, col_near, col_far):
+    """One outline's blend: the pixel it starts from and the other, each (N, C).
+
+    The surface covers the segment from the near pixel's centre to ``t``; ``col_far`` is seen
+    beyond.  Returns the changes of the near and the far pixel.
+    """
+    w_far = (weight * jnp.maximum(t - 0.5, 0.0))[:, None]
+    w_near = (weight * jnp.maximum(0.5 - t, 0.0))[:, None]
+    return w_near * (col_far - col_near), w_far * (col_near - col_far)
+
+
+def _pair_deltas(normals, onward, focal, tri, depth, ray, col, step, axis, background):
+    """Colour changes of the two pixels of every pair (a, b) along one axis (N pairs).
+
+    Args:
+        normals, onward: :func:`_edge_planes`; focal: ``(fx, fy)``.
+        tri, depth, ray, col: pairs of (N,) triangle ids (-1 empty), (N,) depths, (N, 3) rays
+            and (N, C) colours, for pixel a and pixel b.
+        step: (3,) from a's ray to b's; axis: 0 horizontal, 1 vertical.
+        background: (C,) colour behind every surface, or None.
+
+    Returns:
+        ``(delta_a, delta_b)``, each (N, C).
+    """
+    (tri_a, tri_b), (depth_a, depth_b), (ray_a, ray_b), (col_a, col_b) = tri, depth, ray, col
+    # The front surface is the nearer one; an empty pixel is never in front.
+    a_front = (tri_a >= 0) & ((tri_b < 0) | (depth_a <= depth_b))
+    active = (tri_a != tri_b) & ((tri_a >= 0) | (tri_b >= 0))
+    front = jnp.where(active, jnp.where(a_front, tri_a, tri_b), -1)
+    back = jnp.where(active, jnp.where(a_front, tri_b, tri_a), -1)
+    ray_f = jnp.where(a_front[:, None], ray_a, ray_b)
+    ray_o = jnp.where(a_front[:, None], ray_b, ray_a)
+    dir_f = jnp.where(a_front[:, None], step, -step)
+    col_f = jnp.where(a_front[:, None], col_a, col_b)
+    col_o = jnp.where(a_front[:, None], col_b, col_a)
+    n = tri_a.shape[0]
+    if background is None:
+        t_f, w_f = _outline_crossing(normals, onward, focal, front, ray_f, dir_f, axis)
+        d_f, d_o = _blend(t_f, w_f, col_f, col_o)
+    else:
+        # Both surfaces' outlines, in one walk: where the back surface's outline shows beyond
+        # the front's, a gap between them shows the background.
+        t, w = _outline_crossing(
+            normals, onward, focal, jnp.concatenate([front, back]),
+            jnp.concatenate([ray_f, ray_o]), jnp.concatenate([dir_f, -dir_f]), axis,
+        )  # fmt: skip
+        t_f, t_o, w_f, w_o = t[:n], t[n:], w[:n], w[n:]
+        gap = (w_f > 0) & (w_o > 0) & (t_f + t_o < 1.0)
+        bg = jnp.broadcast_to(background, col_f.shape)
+        d_f, d_o = _blend(t_f, w_f, col_f, jnp.where(gap[:, None], bg, col_o))
+        g_o, g_f = _blend(t_o, jnp.where(gap, w_o, 0.0), col_o, bg)
+        d_f, d_o = d_f + g_f, d_o + g_o
+    delta_a = jnp.where(a_front[:, None], d_f, d_o)
+    delta_b = jnp.where(a_front[:, None], d_o, d_f)
     return delta_a, delta_b
 
 
@@ -197,12 +351,16 @@ def analytic_antialias(
     color: jax.Array | None = None,
     *,
     edges: jax.Array | None = None,
+    background: jax.Array | float | None = None,
 ) -> jax.Array:
-    """Blends silhouette pixels by analytic edge coverage (differentiable).
+    """Blends pixels across silhouette edges, so the image is continuous in the geometry.
 
-    Pure and traceable: jit it, ``vmap`` it over cameras or poses (one image
-    per call).  Gradients flow to ``vertices`` and the camera through the
-    blend weights, and to ``color`` (e.g. through :func:`jaxgfx.raster.interpolate`).
+    Pure and traceable: jit it, ``vmap`` it over cameras or poses (one image per call).
+    Gradients flow to ``vertices`` and the camera through where outlines cross between pixel
+    centres, and to ``color`` (e.g. through :func:`jaxgfx.raster.interpolate`).  The covered
+    area of a coverage image follows the outline as it moves across pixel centres, so sums of
+    the image (area, centroid, a loss) have derivatives of the right size over steps of a pixel
+    and more (module docstring).
 
     Args:
         cam: the camera ``raster_out`` was rendered with.
@@ -214,8 +372,14 @@ def analytic_antialias(
         color: (H, W, C) image to antialias (shaded, composited over a
             background, ...); default ``raster_out.color``.
         edges: (F, 3) int32 from :func:`silhouette_edges` (precompute it once
-            per mesh); default: computed here on the host, which needs concrete
-            ``faces``.
+            per mesh, with the bind-pose ``vertices`` when the mesh splits vertices
+            at seams); default: ``silhouette_edges(faces)``, computed here on the
+            host, which needs concrete ``faces``.
+        background: optional colour seen behind every surface, () or (C,) (0 for a coverage
+            image).  With it, where the two pixels of a pair see two surfaces with a gap between
+            them narrower than a pixel (two legs side by side), both outlines blend towards
+            it; without it (as in nvdiffrast), only the front surface's outline blends, towards
+            the other pixel's colour.
 
     Returns:
         (H, W, C) antialiased image; pixels away from silhouettes are unchanged.
@@ -244,8 +408,13 @@ def analytic_antialias(
         raise ValueError(f"color must have shape ({h}, {w}, C), got {tuple(np.shape(image))}")
     vertices = jnp.asarray(vertices, jnp.float32)
     faces = jnp.asarray(faces, jnp.int32)
-    opposite = jnp.asarray(topo, jnp.int32)
+    across = jnp.asarray(topo, jnp.int32)
     color = jnp.asarray(image, jnp.float32)
+    cols = color.shape[-1]
+    if background is not None and np.shape(background) not in ((), (cols,)):
+        raise ValueError(
+            f"background must be a scalar or have shape ({cols},), got {np.shape(background)}"
+        )
     if faces.shape[0] == 0:
         return color
     p_cam = world_to_camera(cam, vertices)
@@ -258,29 +427,32 @@ def analytic_antialias(
     tri = raster_out.tri_id
     # Depth only orders the pair; the blend's gradient comes from the edge.
     depth = jax.lax.stop_gradient(raster_out.depth)
-    # Per-face planes once (F-sized), then one gather per pixel shared by its four pairs.
-    normals, sils = _face_planes(p_cam, faces, opposite)
-    packed = jnp.concatenate([normals.reshape(-1, 9), sils.astype(normals.dtype)], 1)
-    per_px = packed[jnp.maximum(tri, 0)]  # (H, W, 12): one gather
-    m = per_px[..., :9].reshape(h, w, 3, 3)  # (H, W, 3 edges, 3)
-    sil = per_px[..., 9:] > 0.5  # (H, W, 3)
-    inside = jnp.sum(m * rays[:, :, None, :], -1)  # (H, W, 3)
-    # Neighbouring rays differ by (1 / fx, 0, 0) along a row and (0, -1 / fy, 0) down a column.
-    step_x, step_y = m[..., 0] / fx, -m[..., 1] / fy
-    right = _exit(inside[:, :-1], step_x[:, :-1], sil[:, :-1])
-    left = _exit(inside[:, 1:], -step_x[:, 1:], sil[:, 1:])
-    down = _exit(inside[:-1], step_y[:-1], sil[:-1])
-    up = _exit(inside[1:], -step_y[1:], sil[1:])
-    cols = color.shape[-1]
-    # Horizontal pairs (x, x + 1), then vertical pairs (y, y + 1).
-    da, db = _pair_deltas(
-        *right, *left, tri[:, :-1], tri[:, 1:], depth[:, :-1], depth[:, 1:],
-        color[:, :-1], color[:, 1:],
-    )  # fmt: skip
-    zero_col = jnp.zeros((h, 1, cols), color.dtype)
-    out = color + jnp.concatenate([da, zero_col], 1) + jnp.concatenate([zero_col, db], 1)
-    da, db = _pair_deltas(
-        *down, *up, tri[:-1], tri[1:], depth[:-1], depth[1:], color[:-1], color[1:]
+    normals, onward = _edge_planes(p_cam, faces, across)
+    bg = (
+        None
+        if background is None
+        else jnp.broadcast_to(jnp.asarray(background, jnp.float32), (cols,))
     )
-    zero_row = jnp.zeros((1, w, cols), color.dtype)
-    return out + jnp.concatenate([da, zero_row], 0) + jnp.concatenate([zero_row, db], 0)
+    zero = jnp.zeros((), rays.dtype)
+    # Horizontal pairs (x, x + 1): the next ray is 1 / fx further along camera x; vertical pairs
+    # (y, y + 1): 1 / fy further down, i.e. along -y.
+    horizontal = (np.s_[:, :-1], np.s_[:, 1:], jnp.stack([1.0 / fx, zero, zero]))
+    vertical = (np.s_[:-1], np.s_[1:], jnp.stack([zero, -1.0 / fy, zero]))
+    out = color
+    for axis, (a, b, step) in enumerate((horizontal, vertical)):
+        pair_shape = (*tri[a].shape, cols)
+        da, db = _pair_deltas(
+            normals, onward, (fx, fy), _pairs(tri, a, b), _pairs(depth, a, b),
+            _pairs(rays, a, b), _pairs(color, a, b), step, axis, bg,
+        )  # fmt: skip
+        # Back to the frame: a's changes miss the last column (row), b's the first.
+        last, first = [(0, 0)] * 3, [(0, 0)] * 3
+        last[1 - axis], first[1 - axis] = (0, 1), (1, 0)
+        out = out + jnp.pad(da.reshape(pair_shape), last) + jnp.pad(db.reshape(pair_shape), first)
+    return out
+
+
+def _pairs(image, a, b):
+    """The pixels a and b of every pair, as two flat arrays (N, ...)."""
+    tail = image.shape[2:]
+    return image[a].reshape(-1, *tail), image[b].reshape(-1, *tail)
