@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from jaxgfx import skin
+from jaxgfx._src.skin import fit_images
 from jaxgfx.camera import look_at, stack_cameras
 from jaxgfx.silhouette import silhouette_edges
 
@@ -202,3 +203,20 @@ def test_bad_arguments_raise_before_tracing(problem):
         fit(skin_fn=lambda s, p: skin_fn(s, p)[:, :2])
     with pytest.raises(TypeError, match="skin_fn"):
         fit(skin_fn="skin")
+    with pytest.raises(ValueError, match="edges"):
+        fit(edges=np.zeros((3, 3), np.int32))
+
+
+def test_split_vertices_are_welded_for_the_silhouette(problem):
+    # The limb with three vertices of its own per face, as flat-shaded glTF meshes come: the
+    # fit's edge topology welds them back, so only true outlines blend.
+    skin_fn, poses, faces, *_ = problem
+    faces = np.asarray(faces)
+    split_faces = np.arange(faces.size).reshape(-1, 3)
+
+    def split_fn(style, pose):
+        return skin_fn(style, pose)[faces.reshape(-1)]
+
+    welded = fit_images._welded_edges(split_fn, INIT, poses, split_faces)
+    np.testing.assert_array_equal(welded, silhouette_edges(faces))
+    assert (silhouette_edges(split_faces) == -1).all()

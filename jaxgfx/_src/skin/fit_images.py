@@ -9,10 +9,12 @@ and outlines instead.  :func:`fit_style_images` fits the same log-parameters (te
 batched with ``vmap`` over poses and, inside, over cameras.  Two images per (pose, camera):
 
 * **silhouette**: the coverage image (1 where the character is drawn, 0 elsewhere) blended across
-  silhouette edges by :func:`jaxgfx.silhouette.analytic_antialias`, so it moves continuously, with
-  gradients, as an outline moves by a fraction of a pixel;
+  silhouette edges by :func:`jaxgfx.silhouette.analytic_antialias` over a background of 0, so it
+  moves continuously, with gradients of the covered area's size, as an outline moves across
+  pixel centres;
 * **depth**: camera-space z from :func:`jaxgfx.raster.rasterize` (differentiable where coverage does
-  not change), ``+inf`` where nothing is drawn.
+  not change), ``+inf`` where nothing is drawn.  It is not antialiased: the depth term only counts
+  pixels both images cover, and moving outlines are the silhouette term's job.
 
 Loss per image (:func:`image_loss`), averaged over the P x C images::
 
@@ -24,8 +26,11 @@ pixels), so both terms are unit-free and the default weights (1 and 1) work for 
 Pixels whose residual exceeds ``depth_clip`` (4 pixels) are left out of the depth term: there
 the two images see different surfaces (a tail in front of the body in one, the body in the
 other), and their depth gradient would pull the surface the wrong way; the silhouette term moves
-such outlines.  On the glTF Fox's tail this took the vertex error after 60 steps from 1.02 % to
-0.26 % of the tail radius (experiments/fit_style_images.py).
+such outlines.
+
+The silhouette needs the mesh's edge topology (:func:`jaxgfx.silhouette.silhouette_edges`) with
+split vertices welded: glTF characters such as the Fox have vertices of their own per face, and
+without welding every triangle edge would count as an outline.
 """
 
 from __future__ import annotations
@@ -79,7 +84,8 @@ def render_silhouette_depth(
         cam: one camera (unbatched).
         vertices: (V, 3) world positions.
         faces: (F, 3) int32 faces.
-        edges: (F, 3) int32 :func:`jaxgfx.silhouette.silhouette_edges` of ``faces``.
+        edges: (F, 3) int32 :func:`jaxgfx.silhouette.silhouette_edges` of ``faces`` (with the
+            vertices, where the mesh splits them at seams).
 
     Returns:
         ``(silhouette (H, W), depth (H, W))``: coverage blended across silhouette edges, and
@@ -88,8 +94,9 @@ def render_silhouette_depth(
     ones = jnp.ones((vertices.shape[0], 1), jnp.float32)  # one cheap channel; colour is unused
     out = rasterize(cam, vertices, faces, ones)
     covered = (out.tri_id >= 0).astype(jnp.float32)[..., None]
-    sil = analytic_antialias(cam, vertices, faces, out, covered, edges=edges)[..., 0]
-    return sil, out.depth
+    # Background 0: a gap narrower than a pixel between two parts shows as a gap.
+    sil = analytic_antialias(cam, vertices, faces, out, covered, edges=edges, background=0.0)
+    return sil[..., 0], out.depth
 
 
 def _render_batch(skin_fn, style, poses, faces, edges, cameras):
@@ -102,12 +109,38 @@ def _render_batch(skin_fn, style, poses, faces, edges, cameras):
     return jax.vmap(one_pose)(poses)
 
 
+def _welded_edges(skin_fn: SkinFn, style: Style, poses, faces) -> np.ndarray:
+    """Edge topology of a skinned mesh with its split vertices welded (host, once per mesh).
+
+    :func:`jaxgfx.silhouette.silhouette_edges` of ``faces`` with the vertices ``skin_fn`` puts
+    on the first pose: vertices it places at exactly the same position (split at seams or per
+    face, skinned alike) are one vertex.
+
+    Args:
+        skin_fn: ``skin_fn(style, pose) -> (V, 3)`` posed positions.
+        style: a concrete style (e.g. the fit's starting style).
+        poses: P stacked poses (concrete); the first is used.
+        faces: (F, 3) int faces (concrete).
+
+    Returns:
+        (F, 3) int32 edge topology for :func:`render_silhouette_depth`.
+    """
+    pose0 = jax.tree_util.tree_map(lambda a: a[0], poses)
+    return silhouette_edges(faces, np.asarray(jax.jit(skin_fn)(style, pose0)))
+
+
+def _concrete(*trees) -> bool:
+    """Whether no leaf of ``trees`` is traced."""
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
+
+
 def render_style_images(
     skin_fn: SkinFn, style: Style, poses, faces, cameras: Camera, *, edges=None
 ) -> ImageTargets:
     """Images of ``style`` on every pose from every camera (e.g. the targets of a synthetic fit).
 
-    Pure apart from the host-side checks; jit it with ``skin_fn`` closed over.
+    Pure apart from the host-side checks; jit it with ``skin_fn`` closed over (and ``edges``
+    given: see below).
 
     Args:
         skin_fn: ``skin_fn(style, pose) -> (V, 3)`` posed positions.
@@ -115,13 +148,20 @@ def render_style_images(
         poses: a pytree of P stacked poses (leading axis P on every leaf).
         faces: (F, 3) int faces of the skinned mesh.
         cameras: C stacked cameras (:func:`jaxgfx.camera.stack_cameras`), one resolution.
-        edges: :func:`jaxgfx.silhouette.silhouette_edges` of ``faces`` (computed when omitted).
+        edges: (F, 3) edge topology of ``faces`` with split vertices welded,
+            ``silhouette_edges(faces, skin_fn(style, pose))`` for any concrete pose.  When
+            omitted: that, on the first pose, if ``style`` and ``poses`` are concrete; under
+            ``jit``, ``silhouette_edges(faces)``, which draws split vertices' edges as outlines.
 
     Returns:
         :class:`ImageTargets` with (P, C, H, W) arrays.
     """
     if edges is None:
-        edges = silhouette_edges(faces)
+        edges = (
+            _welded_edges(skin_fn, style, poses, faces)
+            if _concrete(style, poses)
+            else silhouette_edges(faces)
+        )
     faces = jnp.asarray(faces, jnp.int32)
     sil, depth = _render_batch(skin_fn, style, poses, faces, jnp.asarray(edges), cameras)
     return ImageTargets(silhouette=sil, depth=depth)
@@ -291,6 +331,7 @@ def fit_style_images(
     optimizer: optax.GradientTransformation | None = None,
     progress: bool = True,
     callback: Callable[[int, float], None] | None = None,
+    edges=None,
 ) -> FitResult:
     """Fit a style's textures and curves to depth and silhouette images (never to vertices).
 
@@ -323,6 +364,8 @@ def fit_style_images(
         optimizer: any optax transformation (default Adam with cosine decay).
         progress: show a tqdm bar.
         callback: called as ``callback(step, loss)`` after each step.
+        edges: (F, 3) edge topology of the mesh; default
+            ``silhouette_edges(faces, skin_fn(init_style, poses[0]))`` (split vertices welded).
 
     Returns:
         :class:`~jaxgfx._src.skin.fit.FitResult`; ``data_history`` is the image loss alone.
@@ -343,8 +386,12 @@ def fit_style_images(
     if optimizer is None:
         schedule = optax.cosine_decay_schedule(learning_rate, max(steps, 1), alpha=0.01)
         optimizer = optax.adam(schedule)
+    if edges is None:
+        edges = _welded_edges(skin_fn, init_style, poses, np.asarray(faces))
     faces = jnp.asarray(faces, jnp.int32)
-    edges = jnp.asarray(silhouette_edges(np.asarray(faces)))
+    edges = jnp.asarray(edges, jnp.int32)
+    if edges.shape != faces.shape:
+        raise ValueError(f"edges must have the faces' shape {faces.shape}, got {edges.shape}")
     targets = ImageTargets(
         jnp.asarray(targets.silhouette, jnp.float32), jnp.asarray(targets.depth, jnp.float32)
     )
