@@ -6,8 +6,9 @@ image with respect to the geometry is zero there.  This pass, after nvdiffrast's
 operation (Laine et al. 2020, "Modular Primitives for High-Performance Differentiable Rendering",
 ACM TOG 39(6), Sec. 3.4), blends each pair of neighbouring pixels that see different triangles by
 where the outline of the front surface crosses the segment between the two pixel centres.  The
-result is continuous in the vertices and the camera, and its derivative is the derivative of the
-covered area.
+result is continuous in the vertices and the camera as outlines cross pixel centres (parts
+thinner than a pixel aside, see below), so the derivatives of its sums (covered area, centroid,
+an image loss) are those of the covered area, not only of the blend between crossings.
 
 **The pair blend.**  For pixel centres ``F`` (covered by the front surface) and ``O`` (the other
 pixel), with the outline crossing the segment at ``t`` in ``[0, 1]`` (``t = 0`` at ``F``):
@@ -193,7 +194,42 @@ def _edge_planes(p_cam, faces, across):
     return jnp.stack(normals, 1), jnp.stack(onward, 1).astype(jnp.int32)
 
 
-def _walk_to_outline(normals, onward, face, ray, step):
+def _hop(nrm, nxt_all, face, target, ray, step):
+    """One step of the walk: where the segment leaves ``face``, and what lies beyond.
+
+    Args:
+        nrm: (N, 9) the edge-plane normals of ``face``; nxt_all: (N, 3) its walk table row
+            (:func:`_edge_planes`).
+        face: (N,) the current faces, -1 for finished walks.
+        target: (N,) the other pixel's triangle (-1: none).
+        ray, step: (N, 3) the segment's start ray and its step to the other pixel's ray.
+
+    Returns:
+        ``(hit, edge, onward_face)``, each (N,): whether the segment leaves ``face`` through a
+        silhouette edge before (or just past) the other centre, that edge's index, and the face
+        the walk continues in (-1 when it is over: an outline was crossed, the other centre is
+        reached, or the face beyond is the other pixel's own, which holds that centre).
+    """
+    alive = face >= 0
+    t_exit = jnp.full(face.shape, jnp.inf, nrm.dtype)
+    e_exit = jnp.zeros_like(face)
+    nxt = jnp.full_like(face, -1)
+    for e in range(3):
+        mx, my, mz = nrm[:, 3 * e], nrm[:, 3 * e + 1], nrm[:, 3 * e + 2]
+        a = mx * ray[:, 0] + my * ray[:, 1] + mz * ray[:, 2]
+        d = mx * step[:, 0] + my * step[:, 1] + mz * step[:, 2]
+        leaving = d < 0
+        t = jnp.where(leaving, a / jnp.where(leaving, -d, 1.0), jnp.inf)
+        take = t < t_exit
+        t_exit = jnp.where(take, t, t_exit)
+        e_exit = jnp.where(take, e, e_exit)
+        nxt = jnp.where(take, nxt_all[:, e], nxt)
+    hit = alive & (nxt < 0) & (t_exit < 1.0 + _PAST_CENTRE)
+    on = alive & (nxt >= 0) & (nxt != target) & (t_exit < 1.0)
+    return hit, e_exit, jnp.where(on, nxt, -1)
+
+
+def _walk_to_outline(normals, onward, face, face_n, face_on, target, ray, step):
     """The silhouette edge the segment from a pixel centre to its neighbour's crosses first.
 
     Follows the segment ``ray + t step`` from ``face`` across interior edges into the faces
@@ -204,61 +240,68 @@ def _walk_to_outline(normals, onward, face, ray, step):
     Args:
         normals: (F, 3, 3) :func:`_edge_planes` normals; onward: (F, 3) its walk table.
         face: (N,) the starting face (the front pixel's triangle), -1 for no walk.
+        face_n, face_on: (N, 9) and (N, 3), ``normals`` and ``onward`` of ``face`` (gathered
+            once per pixel by the caller).
+        target: (N,) the other pixel's triangle (-1: none).
         ray, step: (N, 3) the front pixel's ray and the step to the other pixel's.
 
     Returns:
-        ``(face, edge)``, each (N,) int32: the face holding the silhouette edge crossed and the
-        edge's index in it; ``face`` is -1 where the segment reaches the other centre first (no
-        outline between them) or the walk gave up.
+        ``(face, edge, first)``, each (N,): the face holding the silhouette edge crossed (-1
+        where the segment reaches the other centre first, no outline between them, or the walk
+        gave up), the edge's index in it, and whether that face is the starting one.
     """
     flat_n = normals.reshape(normals.shape[0], 9)
-    rx, ry, rz = ray[:, 0], ray[:, 1], ray[:, 2]
-    sx, sy, sz = step[:, 0], step[:, 1], step[:, 2]
+    face = face.astype(jnp.int32)
+    n = face.shape[0]
+    # The first face, for every pair at once: most walks end in it.
+    hit, hit_edge, cur = _hop(face_n, face_on, face, target, ray, step)
+    first = hit
+    hit_face = jnp.where(hit, face, -1)
+    # The rest (segments across faces thinner than a pixel, beside outlines) a chunk of walks
+    # at a time, each to its end.  While loops: they carry no gradient.
+    size = max(1, min(n, n // 16))
 
-    def hop(state):
-        k, cur, hit_face, hit_edge = state
-        alive = cur >= 0
-        safe = jnp.maximum(cur, 0)
-        nrm = flat_n[safe]  # (N, 9): one gather per hop
-        nxt_all = onward[safe]
-        t_exit = jnp.full(cur.shape, jnp.inf, nrm.dtype)
-        e_exit = jnp.zeros_like(cur)
-        nxt = jnp.full_like(cur, -1)
-        for e in range(3):
-            mx, my, mz = nrm[:, 3 * e], nrm[:, 3 * e + 1], nrm[:, 3 * e + 2]
-            a = mx * rx + my * ry + mz * rz
-            d = mx * sx + my * sy + mz * sz
-            leaving = d < 0
-            t = jnp.where(leaving, a / jnp.where(leaving, -d, 1.0), jnp.inf)
-            take = t < t_exit
-            t_exit = jnp.where(take, t, t_exit)
-            e_exit = jnp.where(take, e, e_exit)
-            nxt = jnp.where(take, nxt_all[:, e], nxt)
-        hit = alive & (nxt < 0) & (t_exit < 1.0 + _PAST_CENTRE)
-        hit_face = jnp.where(hit, cur, hit_face)
-        hit_edge = jnp.where(hit, e_exit, hit_edge)
-        cur = jnp.where(alive & (nxt >= 0) & (t_exit < 1.0), nxt, -1)
-        return k + 1, cur, hit_face, hit_edge
+    def chunk(state):
+        cur, hit_face, hit_edge = state
+        # The first `size` walks still going; index n pads the chunk and reads as a done walk.
+        idx = jnp.nonzero(cur >= 0, size=size, fill_value=n)[0]
+        at = jnp.minimum(idx, n - 1)
+        tgt, r, st = target[at], ray[at], step[at]
 
-    def walking(state):
-        return (state[0] < MAX_HOPS) & jnp.any(state[1] >= 0)
+        def hop(inner):
+            k, c, hf, he = inner
+            safe = jnp.maximum(c, 0)
+            h, e, c_next = _hop(flat_n[safe], onward[safe], c, tgt, r, st)
+            return k + 1, c_next, jnp.where(h, c, hf), jnp.where(h, e, he)
 
-    # A while loop that stops when every walk has: most end within two faces.  It carries no
-    # gradient, so reverse mode needs no unrolled copy of it.
+        def walking(inner):
+            return (inner[0] < MAX_HOPS) & jnp.any(inner[1] >= 0)
 
-    none = jnp.full(face.shape, -1, jnp.int32)
-    state = (jnp.zeros((), jnp.int32), face.astype(jnp.int32), none, jnp.zeros_like(none))
-    _, _, hit_face, hit_edge = jax.lax.while_loop(walking, hop, state)
-    return hit_face, hit_edge
+        none = jnp.full((size,), -1, jnp.int32)
+        start = (jnp.zeros((), jnp.int32), jnp.where(idx < n, cur[at], -1), none, none + 1)
+        _, _, hf, he = jax.lax.while_loop(walking, hop, start)
+        # Every walk of the chunk is over: an outline, the other centre, or MAX_HOPS faces.
+        return (
+            cur.at[idx].set(-1, mode="drop"),
+            hit_face.at[idx].set(hf, mode="drop"),
+            hit_edge.at[idx].set(he, mode="drop"),
+        )
+
+    _, hit_face, hit_edge = jax.lax.while_loop(
+        lambda state: jnp.any(state[0] >= 0), chunk, (cur, hit_face, hit_edge)
+    )
+    return hit_face, hit_edge, first
 
 
-def _outline_crossing(normals, onward, focal, face, ray, direction, axis):
+def _outline_crossing(normals, onward, focal, face, face_n, face_on, target, ray, direction, axis):
     """Where each segment first crosses its surface's outline, and the blend's weight there.
 
     Args:
         normals, onward: :func:`_edge_planes` (normals with gradients).
         focal: ``(fx, fy)`` focal lengths in pixels.
-        face: (N,) the triangle at the segment's start (-1: none).
+        face: (N,) the triangle at the segment's start (-1: none); face_n (N, 9) and face_on
+            (N, 3): its normals (with gradients) and walk table row.
+        target: (N,) the triangle at the other end (-1: none).
         ray, direction: (N, 3) the start pixel's ray and the step to the other pixel's.
         axis: 0 for horizontal pairs, 1 for vertical pairs.
 
@@ -266,14 +309,24 @@ def _outline_crossing(normals, onward, focal, face, ray, direction, axis):
         ``(t, weight)``, each (N,): the crossing in [0, 1] from the start (1 where none) and the
         weight of its blend along ``axis`` (0 where no outline is crossed).
     """
-    hit, edge = _walk_to_outline(
-        jax.lax.stop_gradient(normals),
-        onward,
-        face,
-        jax.lax.stop_gradient(ray),
-        jax.lax.stop_gradient(direction),
+    sg = jax.lax.stop_gradient
+    hit, edge, first = _walk_to_outline(
+        sg(normals), onward, face, sg(face_n), face_on, target, sg(ray), sg(direction)
     )
-    n = normals[jnp.maximum(hit, 0), edge]  # (N, 3), with gradients
+    # The crossed edge's plane, with gradients: from the starting face's row where the walk
+    # ended in it, else gathered.  Those few are gathered with gradients as a chunk of
+    # static size (a gather over all pairs would cost a scatter over all pairs in reverse
+    # mode); beyond the chunk, the plane carries no gradient.
+    own = face_n[:, 0:3]
+    for e in (1, 2):
+        own = jnp.where((edge == e)[:, None], face_n[:, 3 * e : 3 * e + 3], own)
+    late_face = jnp.maximum(hit, 0)
+    n_late = sg(normals)[late_face, edge]
+    count = face.shape[0]
+    idx = jnp.nonzero((hit >= 0) & ~first, size=max(1, count // 32), fill_value=count)[0]
+    at = jnp.minimum(idx, count - 1)
+    n_late = n_late.at[idx].set(normals[late_face[at], edge[at]], mode="drop")
+    n = jnp.where(first[:, None], own, n_late)
     a = jnp.sum(n * ray, -1)
     d = jnp.sum(n * direction, -1)
     ok = (hit >= 0) & (d < 0)
@@ -297,13 +350,14 @@ def _blend(t, weight, col_near, col_far):
     return w_near * (col_far - col_near), w_far * (col_near - col_far)
 
 
-def _pair_deltas(normals, onward, focal, tri, depth, ray, col, step, axis, background):
+def _pair_deltas(normals, onward, focal, tri, px_n, px_on, depth, ray, col, step, axis, background):
     """Colour changes of the two pixels of every pair (a, b) along one axis (N pairs).
 
     Args:
         normals, onward: :func:`_edge_planes`; focal: ``(fx, fy)``.
-        tri, depth, ray, col: pairs of (N,) triangle ids (-1 empty), (N,) depths, (N, 3) rays
-            and (N, C) colours, for pixel a and pixel b.
+        tri, px_n, px_on, depth, ray, col: pairs of (N,) triangle ids (-1 empty), (N, 9) and
+            (N, 3) their rows of ``normals`` and ``onward``, (N,) depths, (N, 3) rays and (N, C)
+            colours, for pixel a and pixel b.
         step: (3,) from a's ray to b's; axis: 0 horizontal, 1 vertical.
         background: (C,) colour behind every surface, or None.
 
@@ -311,6 +365,7 @@ def _pair_deltas(normals, onward, focal, tri, depth, ray, col, step, axis, backg
         ``(delta_a, delta_b)``, each (N, C).
     """
     (tri_a, tri_b), (depth_a, depth_b), (ray_a, ray_b), (col_a, col_b) = tri, depth, ray, col
+    (n_a, n_b), (on_a, on_b) = px_n, px_on
     # The front surface is the nearer one; an empty pixel is never in front.
     a_front = (tri_a >= 0) & ((tri_b < 0) | (depth_a <= depth_b))
     active = (tri_a != tri_b) & ((tri_a >= 0) | (tri_b >= 0))
@@ -322,17 +377,25 @@ def _pair_deltas(normals, onward, focal, tri, depth, ray, col, step, axis, backg
     col_f = jnp.where(a_front[:, None], col_a, col_b)
     col_o = jnp.where(a_front[:, None], col_b, col_a)
     n = tri_a.shape[0]
+    n_f, n_o = jnp.where(a_front[:, None], n_a, n_b), jnp.where(a_front[:, None], n_b, n_a)
+    on_f, on_o = jnp.where(a_front[:, None], on_a, on_b), jnp.where(a_front[:, None], on_b, on_a)
+    t_f, w_f = _outline_crossing(normals, onward, focal, front, n_f, on_f, back, ray_f, dir_f, axis)
     if background is None:
-        t_f, w_f = _outline_crossing(normals, onward, focal, front, ray_f, dir_f, axis)
         d_f, d_o = _blend(t_f, w_f, col_f, col_o)
     else:
-        # Both surfaces' outlines, in one walk: where the back surface's outline shows beyond
-        # the front's, a gap between them shows the background.
-        t, w = _outline_crossing(
-            normals, onward, focal, jnp.concatenate([front, back]),
-            jnp.concatenate([ray_f, ray_o]), jnp.concatenate([dir_f, -dir_f]), axis,
+        # The back surface's outline, where the front's is crossed and both pixels are covered:
+        # if it shows beyond the front's, a gap between them shows the background.  Those
+        # pairs (outlines over a surface) are few: they are walked as a chunk of static size,
+        # and beyond it blend as without a background.
+        size = max(1, n // 16)
+        idx = jnp.nonzero((w_f > 0) & (back >= 0), size=size, fill_value=n)[0]
+        at = jnp.minimum(idx, n - 1)
+        t_s, w_s = _outline_crossing(
+            normals, onward, focal, jnp.where(idx < n, back[at], -1), n_o[at], on_o[at],
+            front[at], ray_o[at], -dir_f[at], axis,
         )  # fmt: skip
-        t_f, t_o, w_f, w_o = t[:n], t[n:], w[:n], w[n:]
+        t_o = jnp.ones_like(t_f).at[idx].set(t_s, mode="drop")
+        w_o = jnp.zeros_like(w_f).at[idx].set(w_s, mode="drop")
         gap = (w_f > 0) & (w_o > 0) & (t_f + t_o < 1.0)
         bg = jnp.broadcast_to(background, col_f.shape)
         d_f, d_o = _blend(t_f, w_f, col_f, jnp.where(gap[:, None], bg, col_o))
@@ -428,6 +491,10 @@ def analytic_antialias(
     # Depth only orders the pair; the blend's gradient comes from the edge.
     depth = jax.lax.stop_gradient(raster_out.depth)
     normals, onward = _edge_planes(p_cam, faces, across)
+    # Each pixel's triangle's planes and walk table, gathered once for its four pairs.
+    safe_tri = jnp.maximum(tri, 0)
+    px_n = normals.reshape(-1, 9)[safe_tri]  # (H, W, 9), with gradients
+    px_on = onward[safe_tri]  # (H, W, 3)
     bg = (
         None
         if background is None
@@ -442,8 +509,9 @@ def analytic_antialias(
     for axis, (a, b, step) in enumerate((horizontal, vertical)):
         pair_shape = (*tri[a].shape, cols)
         da, db = _pair_deltas(
-            normals, onward, (fx, fy), _pairs(tri, a, b), _pairs(depth, a, b),
-            _pairs(rays, a, b), _pairs(color, a, b), step, axis, bg,
+            normals, onward, (fx, fy), _pairs(tri, a, b), _pairs(px_n, a, b),
+            _pairs(px_on, a, b), _pairs(depth, a, b), _pairs(rays, a, b), _pairs(color, a, b),
+            step, axis, bg,
         )  # fmt: skip
         # Back to the frame: a's changes miss the last column (row), b's the first.
         last, first = [(0, 0)] * 3, [(0, 0)] * 3
