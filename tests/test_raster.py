@@ -286,11 +286,10 @@ def test_face_batches_give_the_same_visibility():
 
     run = jax.jit(visible_faces, static_argnames=("cull_backfaces", "tri_batch"))
     mesh = trimesh.creation.icosphere(subdivisions=1)
-    v = jnp.asarray(mesh.vertices, jnp.float32)[None]
-    f = jnp.asarray(mesh.faces, jnp.int32)[None]
+    v = jnp.asarray(mesh.vertices, jnp.float32)
+    f = jnp.asarray(mesh.faces, jnp.int32)
     for eye, near in (([0.3, 0.2, 3.0], 0.1), ([0.1, 0.2, 1.2], 0.3)):
         cam = look_at(eye, [0, 0, 0], 60, 24, 18, near, 9.0)
-        cam = jax.tree_util.tree_map(lambda x: x[None], cam)
         for cull in (False, True):
             inv1, fid1 = run(cam, v, f, cull_backfaces=cull, tri_batch=1024)
             inv7, fid7 = run(cam, v, f, cull_backfaces=cull, tri_batch=7)

@@ -50,6 +50,7 @@ __all__ = [
     "projection_matrix",
     "stack_cameras",
     "validate_camera",
+    "as_float32",
 ]
 
 
@@ -83,17 +84,37 @@ class Camera:
     height: int = static_field(480)
     pixel_aspect: float = static_field(1.0)
 
+    def __post_init__(self):
+        # Lists and tuples become float32 arrays, so a camera written by hand
+        # (``position=[0, 0, -5]``) is one leaf per field, as every kernel expects.
+        for name in _FLOAT_FIELDS:
+            value = getattr(self, name)
+            if isinstance(value, (list, tuple)):
+                object.__setattr__(self, name, np.asarray(value, np.float32))
+
     @property
     def shape(self) -> tuple[int, int]:
         """Image shape ``(height, width)``."""
         return (self.height, self.width)
 
 
-def validate_camera(cam: Camera) -> Camera:
-    """Checks a camera's concrete values; raises ``ValueError`` naming the field.
+_FLOAT_FIELDS = ("position", "yaw", "pitch", "roll", "fov_y", "near", "far")
 
-    Traced values (inside ``jit``) are skipped: validation happens before tracing.
+
+def as_float32(cam: Camera) -> Camera:
+    """``cam`` with every float field as float32 (the kernels' precision, also under x64)."""
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), cam)
+
+
+def validate_camera(cam: Camera) -> Camera:
+    """Checks a camera; raises ``TypeError``/``ValueError`` naming the field.
+
+    Types and shapes are checked on abstract values too, so the checks hold inside
+    ``jit``; values (finite, ``fov_y`` in (0, pi), ``0 < near < far``) where they are
+    concrete.  A batched camera (leading axes, :func:`stack_cameras`) is accepted.
     """
+    if not isinstance(cam, Camera):
+        raise TypeError(f"cam must be a jaxgfx Camera, got {type(cam).__name__}")
     check_int("width", cam.width, low=1)
     check_int("height", cam.height, low=1)
     pa = cam.pixel_aspect
@@ -101,8 +122,19 @@ def validate_camera(cam: Camera) -> Camera:
         raise TypeError(f"camera pixel_aspect must be a float, got {type(pa).__name__}")
     if not (math.isfinite(pa) and pa > 0):
         raise ValueError(f"camera pixel_aspect must be finite and > 0, got {pa}")
-    for name in ("position", "yaw", "pitch", "roll", "fov_y", "near", "far"):
+    for name in _FLOAT_FIELDS:
         value = getattr(cam, name)
+        try:
+            dtype = jnp.result_type(value)
+        except TypeError:
+            raise TypeError(
+                f"camera {name} must be a number or array, got {type(value).__name__}"
+            ) from None
+        if not jnp.issubdtype(dtype, jnp.number) or jnp.issubdtype(dtype, jnp.complexfloating):
+            raise TypeError(f"camera {name} must be real numbers, got {dtype}")
+        shape = np.shape(value)
+        if name == "position" and (len(shape) < 1 or shape[-1] != 3):
+            raise ValueError(f"camera position must have shape (3,), got {shape}")
         if isinstance(value, jax.core.Tracer):
             continue
         arr = np.asarray(value)
@@ -111,7 +143,9 @@ def validate_camera(cam: Camera) -> Camera:
     if not isinstance(cam.fov_y, jax.core.Tracer):
         fov = np.asarray(cam.fov_y)
         if np.any(fov <= 0) or np.any(fov >= math.pi):
-            raise ValueError(f"camera fov_y must be in (0, pi) radians, got {fov}")
+            raise ValueError(
+                f"camera fov_y must be in (0, pi) radians, got {fov} ({np.degrees(fov)} degrees)"
+            )
     if not isinstance(cam.near, jax.core.Tracer) and not isinstance(cam.far, jax.core.Tracer):
         near, far = np.asarray(cam.near), np.asarray(cam.far)
         if np.any(near <= 0):

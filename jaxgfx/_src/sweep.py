@@ -50,7 +50,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxgfx._src.checks import check_int
-from jaxgfx._src.frames import batch_mesh
+from jaxgfx._src.frames import BATCH_AXIS, batch_mesh, shard
 from jaxgfx._src.io import atomic_write, save_json
 
 __all__ = [
@@ -130,24 +130,23 @@ def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
         A :class:`ShardedRenderer`: ``params -> outputs`` for a batch of items.
     """
     mesh = device_mesh(devices)
-    shard = NamedSharding(mesh, PartitionSpec("batch"))
+    batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
     return ShardedRenderer(
-        mesh, jax.jit(_per_device(render_fn, mesh), in_shardings=shard, out_shardings=shard)
+        mesh,
+        jax.jit(
+            _per_device(render_fn, mesh), in_shardings=batch_sharding, out_shardings=batch_sharding
+        ),
     )
 
 
 def _per_device(render_fn: Callable, mesh: Mesh) -> Callable:
     """``vmap(render_fn)`` run by each device on its own slice of the batch (``shard_map``).
 
-    The partitioner would otherwise see the whole batch: the rasterizer's ``custom_vmap``
-    rule loops over frames (``lax.map``), which it cannot split, so every device would
-    gather and render all frames.
+    ``render_fn`` may be any function of one item; inside ``shard_map`` each device sees
+    only its own items, so the partitioner never has to split a user's loops.
     """
-    spec = PartitionSpec("batch")
-    # check_vma=False: render functions need not type their constants as device-varying.
-    return jax.shard_map(
-        jax.vmap(render_fn), mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False
-    )
+    spec = PartitionSpec(BATCH_AXIS)
+    return shard(jax.vmap(render_fn), mesh, spec, spec)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,14 +240,8 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
 
         return jax.lax.map(one, batched, batch_size=chunk)
 
-    spec = tuple(PartitionSpec("batch") if a == 0 else PartitionSpec() for a in axes)
-    # check_vma=False, as in sharded_renderer: a loop whose carry mixes shared and
-    # per-item values (the ray caster's plane loop) would otherwise fail to trace.
-    jitted = jax.jit(
-        jax.shard_map(
-            local, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"), check_vma=False
-        )
-    )
+    spec = tuple(PartitionSpec(BATCH_AXIS) if a == 0 else PartitionSpec() for a in axes)
+    jitted = jax.jit(shard(local, mesh, spec, PartitionSpec(BATCH_AXIS)))
     return ShardedMap(mesh, axes, jitted)
 
 
@@ -258,11 +251,11 @@ def _spans_processes(mesh: Mesh) -> bool:
 
 
 def _run(fn, params, mesh):
-    shard = NamedSharding(mesh, PartitionSpec("batch"))
+    batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
 
     def put(x):
         x = np.asarray(x)
-        return jax.make_array_from_callback(x.shape, shard, lambda idx: x[idx])
+        return jax.make_array_from_callback(x.shape, batch_sharding, lambda idx: x[idx])
 
     out = fn(jax.tree_util.tree_map(put, params))
     # Only a mesh over several processes leaves shards this process cannot read; a sweep over

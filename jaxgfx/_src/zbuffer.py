@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, focal_lengths, world_to_camera_soa
-from jaxgfx._src.frames import stacked_vmap
+from jaxgfx._src.frames import check_batching, per_frame
 
 __all__ = [
     "ClippedTriangles",
@@ -505,22 +505,17 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
 
 
 @functools.cache
-def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
-    """The ``custom_vmap`` kernel for one static configuration (built once, cached).
-
-    Frame by frame inside one program: each frame's z-buffer (H*W int32 twice) stays in
-    cache, where one folded B*H*W z-buffer measured 1.3x slower for 32 bunny frames at
-    512x384 (random scatters over 50 MB), and a vmapped setup ~5x slower.
-    """
+def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int, batching: str):
+    """The batching kernel for one static configuration (built once, cached)."""
 
     def frame(cam, vertices, faces):  # (1/z, face id), each flat (H*W,)
         return _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch)
 
-    return stacked_vmap(frame)
+    return per_frame(frame, batching)
 
 
 def visible_faces(
-    cams: Camera,
+    cam: Camera,
     vertices: jax.Array,
     faces: jax.Array,
     *,
@@ -528,24 +523,29 @@ def visible_faces(
     block: int = 2,
     chunk: int = CHUNK,
     tri_batch: int = TRI_BATCH,
+    batching: str = "auto",
 ) -> tuple[jax.Array, jax.Array]:
-    """Nearest face per pixel for a stack of frames (no gradients flow through it).
+    """Nearest face per pixel of one frame (no gradients flow through it).
 
-    Under ``jax.vmap`` the new axis is folded into the stack (``custom_vmap``), and the
-    frames are rendered one after the other, split over this process's devices when it
-    has several (:func:`jaxgfx._src.frames.map_frames`).
+    Under ``jax.vmap`` the frames follow ``batching`` (:func:`jaxgfx._src.frames.per_frame`):
+    on XLA:CPU one after the other, where each frame's z-buffer (H*W int32 twice) stays in
+    cache (one folded B*H*W z-buffer is slower: random scatters over the whole batch's
+    buffers); elsewhere as one program over the batch.
 
     Args:
-        cams: cameras with a leading axis of 1 (shared) or B; static resolution.
-        vertices: (1 or B, V, 3) world positions.
-        faces: (1 or B, F, 3) int32 vertex indices.
+        cam: the camera; static resolution.
+        vertices: (V, 3) world positions.
+        faces: (F, 3) int32 vertex indices.
         cull_backfaces, block, chunk: as in :func:`jaxgfx.raster.rasterize` (static).
         tri_batch: faces set up and z-buffered at a time (static); bounds a frame's
             temporaries for large meshes without changing the result.
+        batching: the ``vmap`` rule, one of ``"auto"``, ``"frames"``, ``"vectorized"``.
 
     Returns:
-        ``(inv_depth, face_id)``, each (B, H*W): the largest 1/z (0 where empty) and
-        the face index (``NO_TRI`` where empty).
+        ``(inv_depth, face_id)``, each (H*W,): the largest 1/z (0 where empty) and the face
+        index (``NO_TRI`` where empty).
     """
-    fn = _visible_faces_fn(bool(cull_backfaces), int(block), int(chunk), int(tri_batch))
-    return fn(cams, vertices, faces)
+    fn = _visible_faces_fn(
+        bool(cull_backfaces), int(block), int(chunk), int(tri_batch), check_batching(batching)
+    )
+    return fn(cam, vertices, faces)

@@ -22,8 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.camera import Camera, focal_lengths
+from jaxgfx._src.camera import Camera, as_float32, focal_lengths
 from jaxgfx._src.checks import check_float, check_int, static_field
+from jaxgfx._src.frames import per_frame
+from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_lists
@@ -211,6 +213,7 @@ class RenderSettings:
             object.__setattr__(self, name, value)
 
 
+@in_32bit
 def render_rle(
     rle,
     cam: Camera,
@@ -266,33 +269,19 @@ def render_rle(
     # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
     # become constants here; device buffers pass through unchanged.
     rle = jax.tree_util.tree_map(jnp.asarray, rle)
-    frame = jax.custom_batching.custom_vmap(functools.partial(_render_frame, s))
-    frame.def_vmap(functools.partial(_frames_one_by_one, functools.partial(_render_frame, s)))
-    return frame(rle, cam, jnp.asarray(lod_distance, jnp.float32))
+    return _frame_kernel(s)(rle, as_float32(cam), jnp.asarray(lod_distance, jnp.float32))
 
 
-def _frames_one_by_one(fn, axis_size, in_batched, *args):
-    """vmap rule of :func:`render_rle`: the frames one after another (``lax.map``).
+@functools.cache
+def _frame_kernel(s: RenderSettings):
+    """:func:`_render_frame` with the shared batching rule (one kernel per settings).
 
-    The frame's loops stop early and skip idle plane chunks and re-walk
-    batches with ``cond``; batched by plain vmap every frame would run the
-    longest loop and every branch.  One frame at a time runs each frame's own
-    program, so a batch is bit-identical to a loop over the cameras, compiles
-    once and costs no more per frame.  Unbatched arguments (the scene) are
-    closed over, not copied per frame.
+    On XLA:CPU a batch runs frame by frame: the frame's loops stop early and skip idle
+    plane chunks and re-walk batches with ``cond``, which a vectorized batch would run to the
+    longest frame and through every branch; one frame at a time is bit-identical to a loop
+    over the cameras.  Elsewhere the batch is one program (:func:`jaxgfx._src.frames.per_frame`).
     """
-    del axis_size
-    flat, tree = jax.tree_util.tree_flatten(args)
-    flags = jax.tree_util.tree_leaves(in_batched)
-
-    def one(batched):
-        it = iter(batched)
-        return fn(
-            *jax.tree_util.tree_unflatten(tree, [next(it) if b else x for x, b in zip(flat, flags)])
-        )
-
-    out = jax.lax.map(one, [x for x, b in zip(flat, flags) if b])
-    return out, jax.tree_util.tree_map(lambda _: True, out)
+    return per_frame(functools.partial(_render_frame, s))
 
 
 def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
