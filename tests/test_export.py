@@ -90,8 +90,8 @@ def test_skinning_kernels_lower():
     w /= w.sum(1, keepdims=True)
     p = rng.normal(size=(40, 3)).astype(np.float32)
     for kernel in (skin.linear_blend_skinning, skin.dual_quaternion_skinning):
-        _export(lambda t: kernel(t, p, p, j, w), t)
-        _export(jax.vmap(lambda t: kernel(t, p, p, j, w)), np.stack([t, t]))
+        _export(lambda t, kernel=kernel: kernel(t, p, p, j, w), t)
+        _export(jax.vmap(lambda t, kernel=kernel: kernel(t, p, p, j, w)), np.stack([t, t]))
     arm = skin.demo_arm()
     pose = skin.demo_arm_pose(arm.rig, 0.5, 0.2)
     style = skin.muscle_style()
