@@ -13,7 +13,8 @@ A reader's table of contents: thesis section -> function (implementation in
     :func:`otsu_threshold`; cubic voxels from the spacing, :func:`resample_isotropic`,
     :func:`isotropic_shape`) (``formats``, ``volume``); Voxlap's :func:`load_vxl` /
     :func:`load_kv6`; :func:`save_scene` / :func:`load_scene` (``formats``).
-4.3.3 Procedural trees: :func:`procedural_tree` (``tree``).
+4.3.3 Procedural trees:
+    :func:`procedural_tree` (``tree``).
 4.4.6 Pre-processing -- the RLE element ``skip << 6 | draw``: :data:`SKIP_BITS`,
     :data:`DRAW_BITS`, :data:`MAX_SKIP`, :data:`MAX_DRAW`, :func:`pack_element`,
     :func:`unpack_element` (``codec``); the pointer map and columns (Fig. 4.11):
@@ -26,16 +27,20 @@ A reader's table of contents: thesis section -> function (implementation in
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
     :func:`default_pool_size`, :func:`check_camera_outside` (``render``).
-4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3) (``planes``).
-4.5.2 Concentric planes: :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
-4.5.3 Plane parameters: :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
+4.5.1 Vanishing point:
+    :func:`vanishing_point` (Eq. 4.2, 4.3) (``planes``).
+4.5.2 Concentric planes:
+    :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
+4.5.3 Plane parameters:
+    :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
 4.5.4 Rasterizing the ray buffer: :func:`traverse_lists` (2-D DDA per plane, Eq. 4.5
     projection, floating horizon and coverage culling) (``traverse``); the texels
     resolved by a coverage tree: :func:`traverse_planes`, :func:`traverse_plane` (``texels``).
 4.5.5 Displaying the ray buffer: :func:`ray_buffer_coords`, :func:`warp_ray_buffer`,
     :func:`warp_lists` (Eq. 4.6); the exact per-pixel re-walk :func:`refine_pixel`,
     :func:`refine_hits` (not in the thesis) (``warp``).
-4.5.6 Quality (smoothing, anti-aliasing, screen-space normals): :mod:`jaxgfx.post`.
+4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
+    :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
     (exact per-pixel 3-D DDA through the dense grid) (``reference``).
 
