@@ -120,7 +120,7 @@ def lambert(
         albedo: (..., 3) base colour.
         light_dir: direction *towards* the light.
         ambient: ambient fraction in [0, 1].
-        two_sided: use |n.l| so faces seen from behind are lit too.
+        two_sided: use ``|n.l|`` so faces seen from behind are lit too.
     """
     light = jnp.asarray(light_dir, jnp.float32)
     light = light / jnp.linalg.norm(light)
