@@ -23,7 +23,15 @@ import numpy as np
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["BATCHING", "BATCH_AXIS", "batch_mesh", "shard", "per_frame", "check_batching"]
+__all__ = [
+    "BATCHING",
+    "BATCH_AXIS",
+    "batch_mesh",
+    "shard",
+    "split_rows",
+    "per_frame",
+    "check_batching",
+]
 
 BATCH_AXIS = "batch"
 BATCHING = ("auto", "frames", "vectorized")
@@ -70,12 +78,35 @@ def _batch_axis(leaves: Sequence[Any]):
     return None
 
 
-def per_frame(frame_fn: Callable, batching: str = "auto") -> Callable:
+def split_rows(fn: Callable, rows: Sequence[int]) -> Callable:
+    """``fn`` run by each device on its own rows where the row arguments are sharded.
+
+    For kernels whose work is independent per row (per vertex): when the positional
+    arguments ``rows`` are sharded along their leading axis (explicit mesh axes), each device
+    computes its rows (``shard_map``; the other arguments are shared) and the outputs come
+    back sharded the same way; otherwise ``fn`` runs as it is, where its inputs are.
+    """
+    rows = tuple(rows)
+
+    def wrapped(*args):
+        placed = _batch_axis([x for i in rows for x in jax.tree_util.tree_leaves(args[i])])
+        if placed is None:
+            return fn(*args)
+        mesh, axis = placed
+        specs = tuple(P(axis) if i in rows else P() for i in range(len(args)))
+        return shard(fn, mesh, specs, P(axis))(*args)
+
+    return wrapped
+
+
+def per_frame(frame_fn: Callable, batching: str = "auto", chunk: int = 1) -> Callable:
     """``frame_fn`` (written for one frame) with a batching rule chosen by platform.
 
     Under ``jax.vmap`` the batch runs
 
-    * ``"frames"``: one frame after another (``lax.map``), each with its own loop trip counts;
+    * ``"frames"``: one frame after another (``lax.map``), each with its own loop trip counts
+      (``chunk`` > 1: chunks of that many frames vectorized, one chunk after another, which
+      keeps a chunk's tables in cache for kernels without data-dependent loops);
     * ``"vectorized"``: as one program over the whole batch (``jax.vmap(frame_fn)``): every
       loop iteration advances every frame, so the dependent iterations of a batch are those of
       its slowest frame;
@@ -89,11 +120,14 @@ def per_frame(frame_fn: Callable, batching: str = "auto") -> Callable:
     Args:
         frame_fn: function of one frame's arrays (pytrees allowed), returning a pytree.
         batching: one of :data:`BATCHING` (static).
+        chunk: frames per step of the ``"frames"`` rule (static).
 
     Returns:
         A function with ``frame_fn``'s signature whose ``vmap`` follows the rule.
     """
     check_batching(batching)
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk must be a positive int, got {chunk!r}")
 
     @jax.custom_batching.custom_vmap
     def kernel(*args):
@@ -113,6 +147,10 @@ def per_frame(frame_fn: Callable, batching: str = "auto") -> Callable:
             return jax.tree_util.tree_unflatten(tree, leaves)
 
         def frames(frame_args, common):
+            if chunk > 1:
+                return jax.lax.map(
+                    lambda one: frame_fn(*rebuild(one, common)), frame_args, batch_size=chunk
+                )
             # kernel, not frame_fn: an outer vmap of this map reaches the rule again.
             return jax.lax.map(lambda one: kernel(*rebuild(one, common)), frame_args)
 

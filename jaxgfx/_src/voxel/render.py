@@ -22,11 +22,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.camera import Camera, as_float32, focal_lengths
+from jaxgfx._src.camera import Camera, as_float32, focal_lengths, validate_camera
 from jaxgfx._src.checks import check_float, check_int, static_field
 from jaxgfx._src.frames import per_frame
 from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
+from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import refine_hits, warp_lists
@@ -266,6 +267,15 @@ def render_rle(
         (``refined``: pixels that asked for a re-walk).
     """
     s = RenderSettings() if settings is None else settings
+    if not isinstance(s, RenderSettings):
+        raise TypeError(f"settings must be a RenderSettings, got {type(s).__name__}")
+    if not isinstance(rle, RLEVolume):
+        raise TypeError(f"rle must be an RLEVolume (from encode_rle), got {type(rle).__name__}")
+    validate_camera(cam)
+    if max(cam.width, cam.height) >= HALF_LIMIT:
+        raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
+    if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
+        raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
     # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
     # become constants here; device buffers pass through unchanged.
     rle = jax.tree_util.tree_map(jnp.asarray, rle)
@@ -289,10 +299,6 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     num_planes, max_steps, oversample = s.num_planes, s.max_steps, s.oversample
     buffer_size, refine_steps, neighbors = s.buffer_size, s.refine_steps, s.neighbors
     refine_budget, elements_per_step = s.refine_budget, s.elements_per_step
-    if max(cam.width, cam.height) >= HALF_LIMIT:
-        raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
-    if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
-        raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
     if num_planes is None:
         num_planes = default_num_planes(
             cam.width,
