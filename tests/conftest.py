@@ -1,4 +1,4 @@
-"""Shared fixtures: the data folder and jitted functions compiled once per session."""
+"""Shared fixtures: the data folder and jitted functions compiled once per test run."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ higher than this above the terrain surface under it, and its highest-standing on
 must be within this of the surface (not sunk)."""
 
 MIN_SHARE = {"terrain pass": 0.25, "static objects pass": 0.01, "character pass": 0.004}
-"""Share of the demo frame each pass must show after compositing (README states them)."""
+"""Share of the demo frame each pass must show after compositing."""
 
 
 def _surface(tfn, x, z, y_range):
