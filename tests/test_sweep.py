@@ -88,6 +88,22 @@ SHARDED = textwrap.dedent(
     finite = np.where(p_depth > 0, p_depth, 1.0)
     exported = jax.export.export(batched, platforms=["cuda"])(
         jax.ShapeDtypeStruct(posed.shape, jnp.float32))
+    # Skinning follows the data too: one mesh split by vertices, a pose batch by poses.
+    from jaxgfx.sweep import shard_batch
+    t8 = rng.normal(size=(8, 5, 3, 4)).astype(np.float32)
+    mesh_parts = shard_batch((pv, pv, j, w))
+    one_mesh = skin.linear_blend_skinning(t[0], *mesh_parts)
+    poses = jax.jit(jax.vmap(skin.dual_quaternion_skinning, (0, None, None, None, None)))
+    rigid = np.concatenate([np.tile(np.eye(3, dtype=np.float32), (8, 5, 1, 1)), t8[..., 3:]], -1)
+    by_pose = poses(shard_batch(rigid), pv, pv, j, w)
+    lbs_one = skin.linear_blend_skinning(t[0], pv, pv, j, w)
+    pose_one = poses(rigid, pv, pv, j, w)
+    skin_split = dict(
+        mesh_devices=len(one_mesh[0].sharding.device_set),
+        mesh_diff=float(np.abs(np.asarray(one_mesh[0]) - np.asarray(lbs_one[0])).max()),
+        pose_devices=len(by_pose[0].sharding.device_set),
+        pose_diff=float(np.abs(np.asarray(by_pose[0]) - np.asarray(pose_one[0])).max()),
+    )
     placement = dict(
         sharded_devices=len(sharded[0].sharding.device_set),
         sharded_ids_differ=int(np.sum(s_ids != p_ids)),
@@ -97,6 +113,7 @@ SHARDED = textwrap.dedent(
         loop_ids_differ=int(np.sum(p_ids != loop_ids)),
         loop_depth_diff=float(np.abs(p_depth - loop_depth).max()),
         export_devices=exported.nr_devices,
+        **skin_split,
     )
     # rasterize(devices=3): one 24x24 frame's faces dealt over 3 devices (padded faces:
     # 256 % 3 != 0) and its rows shaded 8 per device is bit-identical to one device.
@@ -164,6 +181,8 @@ def test_sharded_sweep_equals_unsharded(tmp_path):
     assert r["plain_devices"] == [0] and r["on1_devices"] == [1]
     assert r["loop_ids_differ"] == 0 and r["loop_depth_diff"] <= 1e-5
     assert r["export_devices"] == 1
+    assert r["mesh_devices"] == 4 and r["mesh_diff"] <= 1e-5
+    assert r["pose_devices"] == 4 and r["pose_diff"] <= 1e-5
 
 
 KILLED_CLI = textwrap.dedent(

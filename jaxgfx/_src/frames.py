@@ -20,13 +20,14 @@ from typing import Any
 
 import jax
 import numpy as np
-from jax.sharding import Mesh
+from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 __all__ = [
     "BATCHING",
     "BATCH_AXIS",
     "batch_mesh",
+    "shard_batch",
     "shard",
     "split_rows",
     "per_frame",
@@ -45,23 +46,93 @@ def check_batching(batching: str) -> str:
     return batching
 
 
-def batch_mesh(devices=None, axis: str = BATCH_AXIS) -> Mesh:
-    """1-D mesh (axis ``axis``) over ``devices`` (default: all devices of all processes)."""
+def batch_mesh(devices=None, axis: str = BATCH_AXIS, *, explicit: bool = False) -> Mesh:
+    """1-D mesh (axis ``axis``) over ``devices`` (default: all devices of all processes).
+
+    ``explicit``: the axis is ``AxisType.Explicit`` (as ``jax.make_mesh`` makes it), so arrays
+    placed on it carry their sharding into traced code, where the batching rules read it;
+    otherwise it is ``Auto`` (for the sweep helpers, which place their batches themselves).
+    """
     devs = np.asarray(jax.devices() if devices is None else list(devices))
     if devs.size == 0:
         raise ValueError("devices: no devices to build a mesh over")
-    return Mesh(devs, (axis,))
+    kind = AxisType.Explicit if explicit else AxisType.Auto
+    return Mesh(devs, (axis,), axis_types=(kind,))
+
+
+def shard_batch(tree, devices=None):
+    """``tree`` placed with every leaf's leading (batch) axis split over ``devices``.
+
+    The one step that puts a batch on every core of a CPU (given one host device per core,
+    ``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` before JAX starts) or on
+    every local accelerator: ``jax.jit(jax.vmap(f))(shard_batch(batch))`` then runs each
+    device's items on that device.  Shared inputs stay as they are.
+
+    Args:
+        tree: a pytree of arrays with one common leading axis B (e.g. stacked cameras).
+        devices: the devices (default: this process's devices); B must be a multiple of
+            their number.
+
+    Returns:
+        The same tree on a 1-D mesh over ``devices``, sharded along the batch axis (an
+        explicit mesh axis: results keep that sharding; ``np.asarray`` or
+        ``jax.device_get`` fetches them whole).
+    """
+    mesh = batch_mesh(jax.local_devices() if devices is None else devices, explicit=True)
+    n = mesh.devices.size
+    sizes = {int(np.shape(x)[0]) for x in jax.tree_util.tree_leaves(tree) if np.ndim(x) > 0}
+    if len(sizes) != 1:
+        raise ValueError(f"tree: leaves must share one leading batch axis, got sizes {sizes}")
+    size = sizes.pop()
+    if size % n:
+        raise ValueError(
+            f"tree: a batch of {size} does not split evenly over {n} devices; pad it to "
+            f"{-(-size // n) * n} items or pass devices="
+        )
+    return jax.device_put(tree, NamedSharding(mesh, P(BATCH_AXIS)))
 
 
 def shard(fn: Callable, mesh, in_specs, out_specs) -> Callable:
-    """``jax.shard_map(fn)`` over ``mesh`` without replication checks.
+    """``jax.shard_map(fn)`` over ``mesh``, its arguments first placed as ``in_specs`` say.
 
-    ``check_vma=False``: kernels build constants (empty z-buffers, loop counters) that are not
-    typed as device-varying, and loops whose carries mix shared and per-device values would
-    otherwise fail to trace; each device's work is independent or merged by explicit
+    Over explicit mesh axes ``shard_map`` takes arguments only with exactly its specs, so an
+    argument placed otherwise (a batch padded on the host, a shared table) is resharded
+    first.  ``check_vma=False``: kernels build constants (empty z-buffers, loop counters) that
+    are not typed as device-varying, and loops whose carries mix shared and per-device values
+    would otherwise fail to trace; each device's work is independent or merged by explicit
     collectives, so nothing relies on the check.
     """
-    return jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
+    mapped = jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
+    abstract = getattr(mesh, "abstract_mesh", mesh)
+
+    def placed(*args):
+        single = isinstance(in_specs, P) or not isinstance(in_specs, tuple)
+        specs = (in_specs,) * len(args) if single else in_specs
+        args = tuple(_on_mesh(a, abstract, sp) for a, sp in zip(args, specs, strict=True))
+        return mapped(*args)
+
+    return placed
+
+
+def _on_mesh(tree, mesh, spec):
+    """``tree`` resharded to ``spec`` on ``mesh`` where a leaf's sharding differs.
+
+    Only over explicit axes (``jax.make_mesh``'s default): there ``shard_map`` refuses an
+    argument whose sharding is not its spec, e.g. one leaf of a batch sharded and one not.
+    """
+    if AxisType.Explicit not in tuple(getattr(mesh, "axis_types", ())):
+        return tree
+
+    def place(x):
+        sharding = getattr(jax.typeof(x), "sharding", None)
+        have = tuple(getattr(sharding, "spec", ()))
+        want = tuple(spec) + (None,) * (np.ndim(x) - len(tuple(spec)))
+        if have == want or (not any(have) and not any(want)):
+            return x
+        with jax.sharding.use_abstract_mesh(mesh):
+            return jax.reshard(x, spec)
+
+    return jax.tree_util.tree_map(place, tree)
 
 
 def _batch_axis(leaves: Sequence[Any]):
@@ -93,8 +164,8 @@ def split_rows(fn: Callable, rows: Sequence[int]) -> Callable:
         if placed is None:
             return fn(*args)
         mesh, axis = placed
-        specs = tuple(P(axis) if i in rows else P() for i in range(len(args)))
-        return shard(fn, mesh, specs, P(axis))(*args)
+        specs = [P(axis) if i in rows else P() for i in range(len(args))]
+        return shard(fn, mesh, tuple(specs), P(axis))(*args)
 
     return wrapped
 
@@ -169,8 +240,8 @@ def per_frame(frame_fn: Callable, batching: str = "auto", chunk: int = 1) -> Cal
             out = local(batched, shared)
         else:
             mesh, axis = placed
-            specs = ([P(axis)] * len(batched), [P()] * len(shared))
-            out = shard(local, mesh, specs, P(axis))(batched, shared)
+            run = shard(lambda b, c: local(list(b), list(c)), mesh, (P(axis), P()), P(axis))
+            out = run(tuple(batched), tuple(shared))
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return kernel

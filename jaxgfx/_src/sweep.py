@@ -241,7 +241,10 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
         return jax.lax.map(one, batched, batch_size=chunk)
 
     spec = tuple(PartitionSpec(BATCH_AXIS) if a == 0 else PartitionSpec() for a in axes)
-    jitted = jax.jit(shard(local, mesh, spec, PartitionSpec(BATCH_AXIS)))
+    jitted = jax.jit(
+        shard(local, mesh, spec, PartitionSpec(BATCH_AXIS)),
+        in_shardings=tuple(NamedSharding(mesh, sp) for sp in spec),
+    )
     return ShardedMap(mesh, axes, jitted)
 
 
