@@ -130,14 +130,15 @@ def test_pages_and_cli_help_are_built(site):
 
 
 def test_readme_and_docs_hold_no_work_log():
-    # The README and the docs describe the library as it is: no work-log sessions, no issue
-    # numbers (history belongs in git).
+    # The README and the docs describe the library as it is: no numbered work-log runs, no
+    # issue numbers (history belongs in git).  The word is spelled with a character class so
+    # that this file passes the same search.
     sources = [ROOT / "README.md"] + [
         p
         for p in DOCS.rglob("*")
         if p.suffix in (".md", ".rst", ".py") and "_build" not in p.relative_to(DOCS).parts
     ]
-    bad = re.compile(r"session|issue ?[0-9]+", re.IGNORECASE)
+    bad = re.compile(r"s[e]ssion|issue ?[0-9]+", re.IGNORECASE)
     hits = [
         f"{p.relative_to(ROOT)}:{i}: {line.strip()}"
         for p in sources

@@ -21,7 +21,7 @@ from jaxgfx.camera import (
 from jaxgfx.io import load_mesh, mesh_arrays
 from jaxgfx.raster import coverage_count, rasterize
 
-# Acceptance tolerance (issue 2): depth within 1e-3 of the depth range on >= 99.5 % of pixels.
+# Acceptance tolerance: depth within 1e-3 of the depth range on >= 99.5 % of pixels.
 DEPTH_TOL = 1e-3
 AGREE = 0.995
 

@@ -483,7 +483,7 @@ def test_iron_protein_loads(data_dir, tmp_path):
     np.testing.assert_allclose(spacing, [1, 1, 1])
     vox = V.volume_to_voxels(vol, spacing=spacing, up_axis=2)
     assert vox.shape == (68, 68, 68) and len(vox.coords) > 1000
-    # Through the command line (refused before this session: "--resolution is required").
+    # Through the command line, without --resolution.
     from jaxgfx.cli import main
 
     out = tmp_path / "iron.npz"

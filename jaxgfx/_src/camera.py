@@ -280,7 +280,7 @@ def _camera_coords(cam: Camera, points: jax.Array) -> list[jax.Array]:
     """Camera-space x, y, z of world points (..., 3), each (...).
 
     Multiply-adds, not ``(points - position) @ rot.T``: XLA:CPU hands a (V, 3) x (3, 3)
-    dot to its matrix library, 7.9 ms for 360 k points against 0.2 ms this way.
+    dot to its matrix library, many times slower than these fused multiply-adds.
     """
     d = [points[..., k] - cam.position[k] for k in range(3)]
     return [r[0] * d[0] + r[1] * d[1] + r[2] * d[2] for r in camera_basis(cam)]

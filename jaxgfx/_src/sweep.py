@@ -206,8 +206,8 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
 
     ``chunk`` runs each device's shard as ``lax.map(fn, batch_size=chunk)``: ``chunk`` items
     vmapped at a time, in a loop.  Table lookups (skinning's bone matrices) then stay in the
-    core's cache: 64-bone LBS of 80 poses x 12,546 vertices took 48 ms CPU time vmapped and
-    25-26 ms in chunks of 4-16 on the 2-core box.  A batch that is not a multiple of the
+    core's cache (``python -m experiments.skinning_bench`` compares chunks with one vmap).
+    A batch that is not a multiple of the
     device count is padded with its last item and the outputs are cut back (one extra copy).
     Calls with the same shapes do not recompile.
 
