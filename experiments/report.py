@@ -30,7 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import NamedTuple
 
@@ -206,7 +206,7 @@ def main(argv=None) -> int:
     selected = [BY_NAME[n] for n in names]
 
     host = machine()
-    when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     with tempfile.TemporaryDirectory(prefix="jaxgfx-report-") as tmp:
         base = Path(args.out) if args.out else Path(tmp)
         results = []
