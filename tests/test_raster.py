@@ -232,6 +232,15 @@ def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(raster_jit
     outp = by_pose(posed)
     for k in range(4):
         _same_frames(outp, raster_jit(cam0, posed[k], f, posed[k]), k)
+    # The accelerators' rule forced on this CPU (one vectorized program for the batch, its
+    # loops advancing every frame) gives the frame-by-frame frames.
+    vec = dict(batching="vectorized")
+    out_vec = jax.jit(jax.vmap(lambda c: rasterize(c, v, f, v, **vec)))(cams)
+    outp_vec = jax.jit(jax.vmap(lambda vv: rasterize(cam0, vv, f, vv, **vec)))(posed)
+    for k in range(8):
+        _same_frames(out_vec, jax.tree_util.tree_map(lambda x, k=k: x[k], out), k)
+    for k in range(4):
+        _same_frames(outp_vec, jax.tree_util.tree_map(lambda x, k=k: x[k], outp), k)
     # A second batch of the same shapes (new cameras, moved vertices): no recompilation.
     cams2 = dataclasses.replace(cams, yaw=cams.yaw + 7.0)
     with compile_counter() as compiles:
