@@ -16,6 +16,13 @@ import jaxgfx.cli
 from jaxgfx.cli import build_parser, main
 
 
+@pytest.fixture
+def ico(tmp_path):
+    path = tmp_path / "ico.ply"
+    trimesh.creation.icosphere(subdivisions=0).export(path)
+    return str(path)
+
+
 def test_info(capsys):
     import jax
 
@@ -29,21 +36,21 @@ def test_info(capsys):
     assert info["local_devices"] == jax.local_device_count() >= 1
 
 
-def test_render_mesh_with_depth(tmp_path, capsys):
-    mesh_file = tmp_path / "ico.ply"
-    trimesh.creation.icosphere(subdivisions=2).export(mesh_file)
+def test_render_mesh_with_depth(tmp_path, capsys, ico):
+    # ico at 16x12: the size of every small render here, so a worker compiles it once
     png, npy = tmp_path / "f.png", tmp_path / "d.npy"
-    rc = main(["render", str(mesh_file), "--size", "40x30", "--out", str(png), "--depth", str(npy)])
+    rc = main(["render", ico, "--size", "16x12", "--out", str(png), "--depth", str(npy)])
     assert rc == 0
     d = np.load(npy)
-    assert d.shape == (30, 40) and np.isfinite(d).any() and np.isinf(d).any()
-    assert iio.imread(png).shape == (30, 40, 3)
+    assert d.shape == (12, 16) and np.isfinite(d).any() and np.isinf(d).any()
+    assert iio.imread(png).shape == (12, 16, 3)
     # explicit camera: x,y,z,yaw,pitch -- looking away from the mesh sees nothing
     rc = main(
-        ["render", str(mesh_file), "--camera", "0,0,5,0,0", "--size", "16x12",
+        ["render", ico, "--camera", "0,0,5,0,0", "--size", "16x12",
          "--out", str(png), "--depth", str(npy)]
     )  # fmt: skip
     assert rc == 0 and np.all(np.isinf(np.load(npy)))
+    assert "lies behind the camera" in capsys.readouterr().err  # and says so
 
 
 def test_cli_errors(tmp_path, capsys):
@@ -59,12 +66,10 @@ def test_cli_errors(tmp_path, capsys):
     assert main([]) == 2  # no subcommand: help, exit 2
 
 
-def test_negative_camera_values_need_no_equals(tmp_path, capsys):
-    mesh_file = tmp_path / "ico.ply"
-    trimesh.creation.icosphere(subdivisions=1).export(mesh_file)
+def test_negative_camera_values_need_no_equals(tmp_path, capsys, ico):
     npy = tmp_path / "d.npy"
     rc = main(
-        ["render", str(mesh_file), "--camera", "-0.5,0,-5,0,0", "--size", "16x12",
+        ["render", ico, "--camera", "-0.5,0,-5,0,0", "--size", "16x12",
          "--out", str(tmp_path / "f.png"), "--depth", str(npy)]
     )  # fmt: skip
     assert rc == 0 and np.isfinite(np.load(npy)).any()  # looks along +z at the sphere
@@ -137,13 +142,6 @@ def _error_line(capsys, *words: str) -> str:
     for w in words:
         assert w in lines[0], lines[0]
     return lines[0]
-
-
-@pytest.fixture
-def ico(tmp_path):
-    path = tmp_path / "ico.ply"
-    trimesh.creation.icosphere(subdivisions=0).export(path)
-    return str(path)
 
 
 def test_bad_output_paths(tmp_path, capsys, ico):

@@ -124,13 +124,14 @@ def _skinned_scene(args: argparse.Namespace):
     return merge_mesh_passes(passes), info
 
 
-def _load_mesh_pass(args: argparse.Namespace):
+def _load_mesh_pass(args: argparse.Namespace, skinned: bool | None = None):
     """The mesh file as one :class:`MeshPass`, whether it is skinned (+ summary info)."""
     from jaxgfx.io import load_mesh, mesh_arrays
     from jaxgfx.scene import mesh_pass
 
     check_in_file("mesh", args.mesh, MESH_KIND)
-    skinned = _is_skinned_glb(args.mesh)
+    if skinned is None:
+        skinned = _is_skinned_glb(args.mesh)
     if skinned:  # a glTF character, posed, with its props
         mp, info = _skinned_scene(args)
         return mp, info, True
@@ -158,16 +159,16 @@ def run_render(args: argparse.Namespace) -> int:
     out = check_out_file("--out", args.out, (".png",))
     depth = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
     check_image(args.size, PIXEL_BYTES)
-    if args.time is not None:
-        check_in_file("mesh", args.mesh, MESH_KIND)
-        if not _is_skinned_glb(args.mesh):
-            raise CliError(f"--time applies to a .glb with a skinned mesh, not {args.mesh}")
+    check_in_file("mesh", args.mesh, MESH_KIND)
+    skinned = _is_skinned_glb(args.mesh)
+    if args.time is not None and not skinned:
+        raise CliError(f"--time applies to a .glb with a skinned mesh, not {args.mesh}")
 
     import jax
 
     from jaxgfx.io import save_npy, save_png
 
-    mp, info, skinned = _load_mesh_pass(args)
+    mp, info, skinned = _load_mesh_pass(args, skinned)
     v, f = np.asarray(mp.vertices), np.asarray(mp.faces)
     cam = _camera_for(v, args, CHARACTER_VIEW if skinned else MESH_VIEW)
     t0 = time.perf_counter()
