@@ -1,6 +1,7 @@
 """``jaxgfx voxelize`` and ``jaxgfx render-voxels`` (thesis chapter 4).
 
-Conventions: scene coordinates are voxel units, y up.  A voxelized mesh of
+Conventions: scene coordinates are voxel units, y up, the subject's front towards
++z (where the default ``render-voxels`` camera stands).  A voxelized mesh of
 resolution R occupies [0, R) on its longest axis with its lowest voxel at
 y = 0.  Cameras take yaw in degrees about +y (0 looks along +z) and pitch in
 degrees (positive looks up).  Depth files hold the distance along the view
@@ -110,8 +111,8 @@ def _front_in_world(front: str, up: str, is_volume: bool):
 
 
 _CONVENTIONS = (
-    "Scene coordinates are voxel units, y up; a voxelized mesh of resolution R occupies "
-    "[0, R) on its longest axis with its lowest voxel at y = 0."
+    "Scene coordinates are voxel units, y up, the subject's front towards +z; a voxelized "
+    "mesh of resolution R occupies [0, R) on its longest axis with its lowest voxel at y = 0."
 )
 
 
@@ -488,7 +489,8 @@ def register(subparsers) -> None:
         description="Voxelize an input into surface voxels and report the RLE memory use "
         "(thesis 4.3, 4.4.6). " + _CONVENTIONS + " Meshes keep their vertex colours, else "
         "one clay colour. Volumes keep their sample spacing (resampled to cubic voxels, "
-        "trilinear) and their slice axis (z) becomes y.",
+        "trilinear), their slice axis (z) becomes y and their front (-y, the face in DICOM "
+        "and NRRD patient coordinates) faces +z; see --up and --front.",
     )
     p.add_argument("input", help="mesh (.ply/.obj/...), volume (.mhd, .nhdr/.nrrd, .vtk; "
                    ".nii, .mha, ... with jaxgfx[volumes]), .vxl, .kv6, "
@@ -505,7 +507,7 @@ def register(subparsers) -> None:
     p.add_argument("--front", choices=FRONT_AXES, default=None,
                    help="the file's axis out of the subject's front, turned to +z where "
                    "render-voxels looks from: volumes default -y (the face in the patient "
-                   "coordinates of DICOM and NRRD), meshes z")  # fmt: skip
+                   "coordinates of DICOM and NRRD; write --front=-y), meshes z")  # fmt: skip
     p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
     p.add_argument("--out", required=True, help="output scene (.npz)")
