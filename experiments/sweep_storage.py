@@ -12,7 +12,7 @@ and what the resumed run computed and skipped; its bytes equal the uninterrupted
 Usage::
 
     python -m experiments.sweep_storage --out out/sweep_storage            # 1000 x 320x240
-    python -m experiments.sweep_storage --quick --out out/sweep_storage    # 24 x 160x120
+    python -m experiments.sweep_storage --quick --out out/sweep_storage    # 12 x 96x72
 """
 
 from __future__ import annotations
@@ -56,17 +56,17 @@ def _sizes(out: Path) -> dict:
     )
 
 
-def _command(mesh: str, n: int, size: str, out: Path) -> list[str]:
+def _command(mesh: str, n: int, size: str, chunk: int, out: Path) -> list[str]:
     return [sys.executable, "-m", "jaxgfx.cli", "sweep", mesh, "--n", str(n), "--size", size,
-            "--chunk", "8", "--out", str(out)]  # fmt: skip
+            "--chunk", str(chunk), "--out", str(out)]  # fmt: skip
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="24 frames at 160x120")
+    p.add_argument("--quick", action="store_true", help="12 frames at 96x72")
     p.add_argument("--out", default="out/sweep_storage", help="folder for the table")
     args = p.parse_args()
-    n, size = (24, "160x120") if args.quick else (1000, "320x240")
+    n, size, chunk = (12, "96x72", 4) if args.quick else (1000, "320x240", 8)
     w, h = (int(v) for v in size.split("x"))
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -76,7 +76,7 @@ def main() -> None:
         mesh, what = _mesh(tmp)
         full = tmp / "full"
         t0 = time.perf_counter()
-        done = subprocess.run(_command(mesh, n, size, full), capture_output=True, text=True)
+        done = subprocess.run(_command(mesh, n, size, chunk, full), capture_output=True, text=True)
         seconds = time.perf_counter() - t0
         if done.returncode != 0:
             raise SystemExit(done.stderr[-3000:])
@@ -99,16 +99,16 @@ def main() -> None:
         # Ctrl-C reaches the sweep even where this script runs with SIGINT ignored (a
         # background job of a non-interactive shell), which its children would inherit.
         proc = subprocess.Popen(
-            _command(mesh, n, size, part), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+            _command(mesh, n, size, chunk, part), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
             text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )  # fmt: skip
-        chunks = -(-n // 8)
+        chunks = -(-n // chunk)
         while proc.poll() is None and len(list(part.glob("chunks/chunk_*.npz"))) < chunks // 3:
             time.sleep(0.05)
         os.kill(proc.pid, signal.SIGINT)
         _, err = proc.communicate()
         last = err.replace("\r", "\n").strip().splitlines()[-1]
-        again = subprocess.run(_command(mesh, n, size, part), capture_output=True, text=True)
+        again = subprocess.run(_command(mesh, n, size, chunk, part), capture_output=True, text=True)
         summary = json.loads(again.stdout.strip().splitlines()[-1])
         same = _sizes(part)["total_MB"] == sizes["total_MB"]
         rows.append(
