@@ -18,6 +18,7 @@ from jaxgfx._src.sweep import SweepMismatch as SweepMismatch
 from jaxgfx._src.sweep import batch_size as batch_size
 from jaxgfx._src.sweep import chunk_path as chunk_path
 from jaxgfx._src.sweep import device_mesh as device_mesh
+from jaxgfx._src.sweep import image_path as image_path
 from jaxgfx._src.sweep import load_sweep as load_sweep
 from jaxgfx._src.sweep import render_fingerprint as render_fingerprint
 from jaxgfx._src.sweep import run_sweep as run_sweep
@@ -37,4 +38,5 @@ __all__ = [
     "SweepMismatch",
     "load_sweep",
     "chunk_path",
+    "image_path",
 ]

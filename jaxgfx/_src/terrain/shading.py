@@ -8,7 +8,7 @@ and flat, with a smooth position-hashed detail term instead of a detail texture,
 every vertex gets its colour from its position and normal alone (no texture lookups)
 and the colours are continuous across Clip-Box levels.  :func:`render_terrain` draws
 the nested levels with these colours, one-sided sun plus sky light, distance fog that
-reaches the sky's horizon colour at the outer box, and the sky behind.
+fades into the sky behind each pixel by the outer box, and the sky itself.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ __all__ = ["terrain_colors", "render_terrain", "SKY_HORIZON", "SKY_ZENITH"]
 
 _F32 = jnp.float32
 SKY_HORIZON = (0.80, 0.85, 0.90)
-"""The sky at the horizon, also the fog colour: far terrain fades into the sky."""
+"""The sky at the horizon; far terrain fades into the sky colour behind each pixel."""
 SKY_ZENITH = (0.32, 0.52, 0.82)
 
 _GRASS = (0.29, 0.40, 0.17)
@@ -148,7 +148,7 @@ def render_terrain(
         anchor: (3,) integer world position the camera and vertices are relative to.
         height_range: (low, high) WORLD y for the colour bands.
         fog_distance: camera depth (voxels) where the fog reaches 95 %; the outer box's
-            half-width hides the box edge in the sky's horizon colour.  None: no fog.
+            half-width hides the box edge in the sky behind it.  None: no fog.
         light_dir: direction towards the sun.
         snow_line: as in :func:`terrain_colors`.
         rasterize_fn: a jitted ``jaxgfx.raster.rasterize`` (default: jit it here).
@@ -184,14 +184,14 @@ def render_terrain(
     sun = jnp.maximum(jnp.sum(nrm * light, -1, keepdims=True), 0.0)
     sky = 0.5 + 0.5 * nrm[..., 1:2]  # hemisphere light: facing up sees more sky
     lit = albedo * (0.7 * sun + 0.45 * sky)
-    horizon = jnp.asarray(SKY_HORIZON, _F32)
     hit = jnp.isfinite(out.depth)
+    # below the horizon, where no box reaches, the "ground" is the horizon colour
+    sky_frame = background(cam, horizon=SKY_HORIZON, zenith=SKY_ZENITH, ground=SKY_HORIZON)
     if fog_distance is None:
         color = lit
     else:
         z = jnp.where(hit, out.depth, 0.0) / fog_distance
         k = (1.0 - jnp.exp(-3.0 * z * z * z))[..., None]  # clear near, 95 % at fog_distance
-        color = lit * (1.0 - k) + horizon * k
-    # below the horizon, where no box reaches, the "ground" is the fog colour too
-    sky_frame = background(cam, horizon=SKY_HORIZON, zenith=SKY_ZENITH, ground=SKY_HORIZON)
+        # far terrain fades into the sky behind it, not into one colour: no grey cut-outs
+        color = lit * (1.0 - k) + sky_frame.color * k
     return Frame(jnp.where(hit[..., None], color, sky_frame.color), out.depth)
