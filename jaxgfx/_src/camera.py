@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import check_int, static_field
+from jaxgfx._src.checks import check_float, check_int, static_field
 
 __all__ = [
     "Camera",
@@ -182,6 +182,9 @@ def camera_from_degrees(
     """
     width = check_int("width", width, low=1)
     height = check_int("height", height, low=1)
+    fov = check_float("fov", fov)
+    if not 0.0 < fov < 180.0:
+        raise ValueError(f"fov must be in (0, 180) degrees, got {fov}")
     pos = np.asarray(position, dtype=np.float32)
     if pos.shape != (3,):
         raise ValueError(f"position must have shape (3,), got {pos.shape}")
