@@ -128,7 +128,7 @@ def default_path(terrain, function: str, half_width: int) -> tuple[np.ndarray, f
 
     if isinstance(terrain, T.HeightmapTerrain):
         m = terrain.mapping
-        w, d = m.shape[1] * m.cell, m.shape[0] * m.cell
+        w, d = m.shape[1] * m.cells[0], m.shape[0] * m.cells[1]
         cx, cz = m.origin[0] + w / 2, m.origin[1] + d / 2
         t = np.linspace(0.0, 1.0, 65)
         x = cx + 0.12 * w * np.sin(2 * np.pi * t)
@@ -407,7 +407,7 @@ def run(args) -> int:
         fov=args.fov,
         height_range=color_heights(terrain, args.function),
         fog_distance=float(args.fog * reach(args)) if args.fog > 0 else None,
-        snow_line=snow_line(args),
+        snow_line=snow_line(args, terrain),
         wait=args.wait,
     )
     total_s = time.perf_counter() - t0
