@@ -855,7 +855,7 @@ def quads_reference(occ: np.ndarray, seam: bool) -> set:
 
 
 def test_mesh_matches_numpy_reference():
-    # Issue 17 item 6: the word-parallel mesher gives exactly the reference quads (as
+    # The word-parallel mesher gives exactly the reference quads (as
     # lattice triangles), each vertex once, and vertex_id inverts the lattice.
     rng = np.random.default_rng(5)
     vox = np.zeros((N, N, N), bool)
@@ -1039,13 +1039,13 @@ SNAP_TOL = 0.02
 @pytest.mark.parametrize("viewer", [(5, 2, 7), (40, -3, 21)])
 @pytest.mark.parametrize("snap", [False, True])
 def test_levels_lie_on_the_same_surface(viewer, snap):
-    # Issue 17 item 2: every level, its seam ring included, is an unbiased estimate of
+    # Every level, its seam ring included, is an unbiased estimate of
     # the same surface.  A level-l voxel drawn as [p, p + 2^l] stood (2^l - 1) / 2 too
     # high on average, and the ring (the outer level's samples) smoothed at the inner
     # level's strength stood up to an outer voxel above both neighbours: flat-topped
     # slabs along every box border.  With snap (the default for height maps) every
     # vertex but the seam ring's lies on the surface itself.
-    t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
+    t = T.heightmap_terrain(SMOOTH_MAP, vertical_scale=1.0, base=-12, origin=(0, 0), wrap=True)
     pipe = pipeline_on(t)
     pipe.snap = snap
     st = pipe.init(np.array(viewer))
@@ -1088,7 +1088,7 @@ def test_snap_to_surface_is_exact_far_away():
 
 def _seam_pair():
     """Smoothed level-0 and level-1 meshes of a small height map, the level-0 one with a seam."""
-    t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
+    t = T.heightmap_terrain(SMOOTH_MAP, vertical_scale=1.0, base=-12, origin=(0, 0), wrap=True)
     viewer = np.array([5, 2, 7])
     b0, b1 = (
         clipbox_jit(t, jnp.asarray(T.clipbox_origin(viewer, lvl, N), jnp.int32), lvl, size=N)
@@ -1136,7 +1136,7 @@ def test_blend_compact_rows_equal_every_row(monkeypatch):
 
 @pytest.mark.parametrize("name", ["saw", "csg"])
 def test_exported_mesh_is_one_surface(name):
-    # Issue 17 item 5: the levels welded into one surface -- no duplicate vertices,
+    # The levels welded into one surface -- no duplicate vertices,
     # no edge in more than two triangles, open edges only on the outermost rim.
     viewer = np.array([5, 3, 7])
     st = pipeline_on(TERRAINS[name]).init(viewer)
