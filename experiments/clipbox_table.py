@@ -203,7 +203,7 @@ CITED = (
 )
 
 
-def meshing_peers(pipe, st, repeats: int = 5) -> list[dict]:
+def meshing_peers(pipe, st, repeats: int = 5, with_designs: bool = True) -> list[dict]:
     """voxels_to_mesh (and its earlier designs) against VTK FlyingEdges3D and skimage
     marching cubes, per level box.
 
@@ -228,7 +228,7 @@ def meshing_peers(pipe, st, repeats: int = 5) -> list[dict]:
             peers[name] = make
     designs = {
         k: jax.jit(functools.partial(_voxels_to_mesh, **kw), static_argnames=("max_quads", "seam"))
-        for k, kw in DESIGNS.items()
+        for k, kw in (DESIGNS.items() if with_designs else ())
     }
     rows = []
     for lvl, box in enumerate(st.boxes):
@@ -363,7 +363,7 @@ def main(argv=None) -> int:
             f"compile ~{row['compile_s']:.0f} s"
         )
         if n == detail_n:
-            peers = meshing_peers(pipe, st)
+            peers = meshing_peers(pipe, st, with_designs=not quick)
             key = jax.random.PRNGKey(1)
             subdiv = {lvl: subdivision_ms(pipe, st, lvl, key) for lvl in range(min(2, levels))}
             detail = dict(

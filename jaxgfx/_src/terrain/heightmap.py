@@ -71,9 +71,10 @@ IMAGE_RELIEF = 0.125
 """Files without units (images, arrays): the samples' range spans this fraction of the
 map's longer side (at most its shorter side), whatever the bit depth -- the proportion
 of real mountain maps (St Helens: 1.86 km of relief on 14 km)."""
-APRON_FADE = 0.1
+APRON_FADE = 0.05
 """Beyond the map the edge fades to the flat apron over this fraction of the map's
-longer side."""
+longer side (at least two samples): short enough that edge profiles do not run on as
+ridges, long enough that the map does not end in a cliff."""
 # --------------------------------------------------------------------------------------
 # Height maps placed in the world (3.5.2)
 # --------------------------------------------------------------------------------------
