@@ -307,11 +307,16 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--levels", type=int, default=None, help="nested Clip-Boxes (default 7; --quick 2)"
     )
+    ap.add_argument(
+        "--sizes", default=None, help="comma-separated N of the lower table (default 64,...,192)"
+    )
     args = ap.parse_args(argv)
     quick = args.quick
     levels = args.levels or (2 if quick else 7)
     detail_n = 32 if quick else 128
     sizes = (32, 48) if quick else (64, 96, 128, 160, 192)
+    if args.sizes:
+        sizes = tuple(int(v) for v in args.sizes.split(","))
     steps = 6 if quick else 24
     width, height = (160, 120) if quick else (640, 480)
     print("machine:", machine())

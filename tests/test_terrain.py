@@ -648,6 +648,11 @@ def test_esri_ascii_grid(tmp_path):
 def test_unitless_relief_whatever_the_bit_depth(tmp_path):
     import imageio.v3 as iio
 
+    from jaxgfx.cli.terrain import IMAGE_RELIEF_TEXT
+
+    num, den = IMAGE_RELIEF_TEXT.split("/")
+    assert int(num) / int(den) == T.IMAGE_RELIEF  # what --help says is what it does
+
     h = _hills(30, 40, 0.0, 1.0, seed=4)
     p8, p16 = tmp_path / "h8.png", tmp_path / "h16.png"
     iio.imwrite(p8, np.round(h * 255).astype(np.uint8))

@@ -30,14 +30,11 @@ __all__ = ["ClipBoxMesh", "seam_occupancy", "voxels_to_mesh", "weld_seam", "visi
 # --------------------------------------------------------------------------------------
 # Bit sets along x: rank and select (compaction for 3.4.4)
 # --------------------------------------------------------------------------------------
-
-
 # A box's voxels, its faces and its lattice corners are bit sets packed along x: bit b of
 # word [g, y, z] is x = 32 g + b.  Neighbours along y and z are then whole words and
 # along x a shift, so the face and used-corner sets come from a few word-wide bitwise
 # passes (N^3 / 32 words) instead of N^3 bool passes and an (N + 1)^3 scatter.  The
 # enumeration order (word-major, then bit) is deterministic; nothing relies on it.
-
 _U32 = jnp.uint32
 
 
@@ -98,8 +95,7 @@ def _directory(words: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
 
 
 def _inclusive_max(x: jax.Array, width: int = 8) -> jax.Array:
-    """Running maximum of a 1-D int array: :func:`_inclusive_sum`'s scheme with max
-    (``lax.cummax`` lowers to the same slow reduce-window tree as ``cumsum``)."""
+    """Running maximum of a 1-D int array: :func:`_inclusive_sum`'s scheme (not cummax)."""
     n = x.shape[0]
     if n <= width:
         return jax.lax.cummax(x)
@@ -116,11 +112,10 @@ def _inclusive_max(x: jax.Array, width: int = 8) -> jax.Array:
 def _select(words, cnt, start, count: int, search: bool = False) -> tuple[jax.Array, jax.Array]:
     """(word, bit) of the ``q``-th set bit for ``q = 0 .. count - 1``; garbage past the total.
 
-    Word ``w`` holds the set bits ``start[w] .. start[w] + cnt[w] - 1``, so each
-    non-empty word writes its index at its first bit's slot and a running maximum
-    carries it over the word's other bits: one scatter over the words and one prefix
-    pass, where a binary search (``search=True``, kept for the design record) costs
-    ~18 dependent gathers per slot.  Within the word a 5-step popcount bisection.
+    Word ``w`` holds set bits ``start[w] .. start[w] + cnt[w] - 1``: each non-empty word
+    writes its index at its first bit's slot and a running maximum carries it on (one
+    scatter, one prefix pass; ``search=True``: a binary search, ~18 dependent gathers
+    per slot).  Within the word a 5-step popcount bisection.
     """
     q = jnp.arange(count, dtype=_I32)
     if search:
@@ -384,12 +379,9 @@ def _voxels_to_mesh(
     materialize: bool = True,
     search: bool = False,
 ) -> ClipBoxMesh:
-    """:func:`voxels_to_mesh`; ``materialize=False`` (sets left to fusion) and
-    ``search=True`` (binary-search select) are the earlier designs, kept so that
-    ``experiments.clipbox_table`` measures them beside the current one in one run."""
-
-    def keep(x):
-        return _keep(box.level >= 0, x) if materialize else x
+    """:func:`voxels_to_mesh`; ``materialize=False`` (sets left to fusion) and ``search=True``
+    are earlier designs that ``experiments.clipbox_table`` measures in the same run."""
+    keep = (lambda x: _keep(box.level >= 0, x)) if materialize else (lambda x: x)
 
     n = box.size
     m1 = n + 1
