@@ -32,7 +32,7 @@ Formats (chosen by the file name's suffix):
 Geographic spacings become metres at the map's centre latitude, per axis, on the
 WGS 84 ellipsoid: a degree of latitude is the meridian's radius of curvature
 ``M(phi) pi / 180``, a degree of longitude ``N(phi) cos(phi) pi / 180`` (3 arc-seconds
-are 74.3 m east-west by 92.5 m north-south at 36.6 N).  Samples marked NODATA (or
+are 74.6 m east-west by 92.5 m north-south at 36.6 N).  Samples marked NODATA (or
 NaN) are filled from their known neighbours, ring by ring (:func:`_fill_outside`).
 """
 

@@ -344,7 +344,7 @@ def heightmap_terrain(
     Files with units (GeoTIFF, SRTM ``.hgt``, ESRI ``.asc``, USGS ``.dem``) get true
     proportions: one metres-per-voxel on x, y and z.  ``cell`` voxels per sample along
     x fixes it (``metres_per_sample[0] / cell``); the z cell and the vertical scale
-    follow (3 arc-seconds at 36.6 N, 74 m by 93 m: cell_z = 1.25 cell).  Files without
+    follow (3 arc-seconds at 36.6 N, 74.6 m by 92.5 m: cell_z = 1.24 cell).  Files without
     units (images, arrays) get square cells and a relief (max - min) of
     :data:`IMAGE_RELIEF` of the map's longer side, at most its shorter side, whatever
     the bit depth; set ``vertical_scale`` to taste.
