@@ -119,8 +119,9 @@ def default_path(terrain, function: str, half_width: int) -> tuple[np.ndarray, f
 
     A height map is crossed from south to north (towards row 0, like the ``terrain``
     view) along a gentle S-curve through the centre, over 76 % of its length, at a
-    quarter of its relief (at least 8 voxels) above the highest ground near the track,
-    looking ahead and 15 degrees down.  Other functions fly from their ``terrain``
+    quarter of its relief (at least 8 voxels, at most a quarter of ``half_width``: with
+    small boxes the ground stays inside them and the fog) above the highest ground
+    near the track, looking ahead and 15 degrees down.  Other functions fly from their ``terrain``
     view along its heading for one outer-box half-width, lifted where the track would
     pass within :data:`MARGIN` voxels of solid ground.
     """
@@ -128,13 +129,13 @@ def default_path(terrain, function: str, half_width: int) -> tuple[np.ndarray, f
 
     if isinstance(terrain, T.HeightmapTerrain):
         m = terrain.mapping
-        w, d = m.shape[1] * m.cell, m.shape[0] * m.cell
+        w, d = m.shape[1] * m.cells[0], m.shape[0] * m.cells[1]
         cx, cz = m.origin[0] + w / 2, m.origin[1] + d / 2
         t = np.linspace(0.0, 1.0, 65)
         x = cx + 0.12 * w * np.sin(2 * np.pi * t)
         z = cz + d * (0.38 - 0.76 * t)
         relief = float(np.max(np.asarray(terrain.heights)))
-        clearance = max(8.0, 0.25 * relief)
+        clearance = min(max(8.0, 0.25 * relief), max(MARGIN + 1.0, half_width / 4))
         step = float(np.hypot(np.diff(x), np.diff(z)).max())
         y = _heightmap_clear_y(terrain, x, z, max(4.0, step)) + clearance
         # a running max then a narrower running mean: smooth, and still >= each
@@ -407,7 +408,7 @@ def run(args) -> int:
         fov=args.fov,
         height_range=color_heights(terrain, args.function),
         fog_distance=float(args.fog * reach(args)) if args.fog > 0 else None,
-        snow_line=snow_line(args),
+        snow_line=snow_line(args, terrain),
         wait=args.wait,
     )
     total_s = time.perf_counter() - t0
