@@ -68,12 +68,6 @@ COMMANDS = (demo, render, info, voxels, terrain, flythrough, skin)
 CACHE_MAX_MB = 1024
 """Default bound of the compilation cache in megabytes (``$JAXGFX_CACHE_MAX_MB``)."""
 
-# Commands whose handlers still let a library ValueError, TypeError or FileNotFoundError
-# about their inputs reach main(); for these main() reports them as usage errors (exit 2).
-# Every other command turns its input errors into CliError itself (args.input_errors), so
-# that an exception reaching main() from them is a bug and shows its traceback.
-_BROAD_USAGE_ERRORS = frozenset({"terrain", "flythrough"})
-
 
 def cache_dir(environ: Mapping[str, str] | None = None) -> Path:
     """Where the CLI keeps compiled programs: ``$JAXGFX_CACHE_DIR``, else
@@ -303,9 +297,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
+    # Every command turns its input errors into CliError itself (args.input_errors), so an
+    # exception reaching main() otherwise is a bug and shows its traceback.
     usage_errors: tuple[type[BaseException], ...] = (CliError,)
-    if args.command in _BROAD_USAGE_ERRORS:
-        usage_errors += (ValueError, TypeError, FileNotFoundError)
     try:
         if getattr(args, "devices", False) is not False:  # a command that shards over devices
             _use_host_cores(args.devices)

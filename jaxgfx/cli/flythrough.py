@@ -28,8 +28,10 @@ from jaxgfx.cli.args import (
     check_image,
     check_memory,
     check_out_file,
+    input_errors,
     parse_size,
     positive_int,
+    writing,
 )
 from jaxgfx.cli.terrain import (
     INSIDE_BY_DEFAULT,
@@ -379,7 +381,8 @@ def run(args) -> int:
     from jaxgfx import terrain as T
     from jaxgfx.io import atomic_write, save_json, save_png
 
-    terrain = terrain_from_args(args)
+    with input_errors():
+        terrain = terrain_from_args(args)
     if args.function not in VIEWS and not isinstance(terrain, T.HeightmapTerrain):
         raise CliError(f"--function {args.function!r} has no default view")
     if args.path is not None:
@@ -428,17 +431,19 @@ def run(args) -> int:
         reuse_pct_mean=round(float(np.mean(reuse)), 1) if reuse else None,
         total_s=round(total_s, 2),
     )
-    with atomic_write(out) as tmp:
+    with writing("--out", out), atomic_write(out) as tmp:
         if out.suffix.lower() == ".gif":
             iio.imwrite(tmp, frames, extension=".gif", duration=1000.0 / args.fps, loop=0)
         else:
             iio.imwrite(tmp, frames, extension=".mp4", fps=args.fps)
-    with atomic_write(md_path) as tmp:
-        tmp.write_text(_table_markdown(args, rows, summary))
-    save_json(js_path, dict(summary, rows=rows))
+    with writing("--out", md_path):
+        with atomic_write(md_path) as tmp:
+            tmp.write_text(_table_markdown(args, rows, summary))
+        save_json(js_path, dict(summary, rows=rows))
     summary.update(out=str(out), table=[str(md_path), str(js_path)])
     if args.still:
-        save_png(args.still, frames[len(frames) // 2])
+        with writing("--still", args.still):
+            save_png(args.still, frames[len(frames) // 2])
         summary["still"] = str(args.still)
     print(json.dumps(summary))
     return 0

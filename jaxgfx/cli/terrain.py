@@ -14,12 +14,14 @@ from jaxgfx.cli.args import (
     bounded_float,
     check_memory,
     check_out_file,
+    input_errors,
     nonnegative_int,
     parse_floats,
     parse_fov,
     parse_ints,
     parse_size,
     positive_int,
+    writing,
 )
 
 __all__ = [
@@ -237,7 +239,8 @@ def run(args) -> int:
     from jaxgfx.io import save_mesh, save_npy, save_png
     from jaxgfx.raster import rasterize
 
-    terrain = terrain_from_args(args)
+    with input_errors():
+        terrain = terrain_from_args(args)
     viewer, (yaw, pitch), heights = _view(args, terrain)
     if not (args.viewer is None and args.function in INSIDE_BY_DEFAULT):
         try:
@@ -268,7 +271,8 @@ def run(args) -> int:
     )
     jax.block_until_ready(frame)
     render_s = time.perf_counter() - t0
-    save_png(args.out, frame.color)
+    with writing("--out", args.out):
+        save_png(args.out, frame.color)
     report = {"function": args.function}
     if isinstance(terrain, T.HeightmapTerrain):
         report.update(terrain.mapping.to_dict())
@@ -281,11 +285,13 @@ def run(args) -> int:
         out=str(args.out),
     )
     if args.depth:
-        save_npy(args.depth, np.asarray(frame.depth))
+        with writing("--depth", args.depth):
+            save_npy(args.depth, np.asarray(frame.depth))
         report["depth"] = str(args.depth)
     if args.mesh:
         mesh = T.mesh_to_trimesh(levels, viewer, level=args.mesh_level)
-        save_mesh(args.mesh, mesh.vertices, mesh.faces)
+        with writing("--mesh", args.mesh):
+            save_mesh(args.mesh, mesh.vertices, mesh.faces)
         report.update(mesh=str(args.mesh), mesh_triangles=len(mesh.faces))
     print(json.dumps(report))
     return 0
