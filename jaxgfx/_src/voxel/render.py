@@ -28,6 +28,7 @@ from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import refine_hits, warp_lists
+from jaxgfx._src.voxel.wide import traverse_wide
 
 __all__ = [
     "RenderOutput",
@@ -128,6 +129,9 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
     return 2.0 * jnp.maximum(fx, fy) / pixels
 
 
+_TRAVERSALS = ("wide", "narrow")
+
+
 def _optional_int(name: str, value, low: int) -> int | None:
     return None if value is None else check_int(name, value, low=low)
 
@@ -188,6 +192,9 @@ class RenderSettings:
     refine_budget: int | None = static_field(None)
     elements_per_step: int = static_field(4)
     planes_per_voxel: float = static_field(3.0)
+    traversal: str = static_field("wide")
+    block_cells: int = static_field(16)
+    block_elements: int | None = static_field(None)
 
     def __post_init__(self):
         # Normalised to Python ints / floats: equal settings hash alike (one compile).
@@ -202,7 +209,11 @@ class RenderSettings:
             refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
             elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
             planes_per_voxel=check_float("planes_per_voxel", self.planes_per_voxel),
+            block_cells=check_int("block_cells", self.block_cells, low=1),
+            block_elements=_optional_int("block_elements", self.block_elements, 1),
         )
+        if self.traversal not in _TRAVERSALS:
+            raise ValueError(f"traversal must be one of {_TRAVERSALS}, got {self.traversal!r}")
         if fields["planes_per_voxel"] < 0:
             raise ValueError(f"planes_per_voxel must be >= 0, got {fields['planes_per_voxel']}")
         if fields["oversample"] <= 0:
@@ -327,38 +338,76 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         levels=rle.levels,
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
-    pool, start, drawn, coverage, first, stats = traverse_lists(
+    wide = s.traversal == "wide"
+    if wide:
+        pool, start, drawn, coverage, first, stats, trav_steps = traverse_wide(
+            rle,
+            cam,
+            seg,
+            planes,
+            rows=rows,
+            lod_distance=lod,
+            buffer_size=buffer_size,
+            block_cells=s.block_cells,
+            block_elements=s.block_elements,
+        )
+    else:
+        pool, start, drawn, coverage, first, stats, trav_steps = traverse_lists(
+            rle,
+            cam,
+            seg,
+            planes,
+            rows=rows,
+            max_steps=max_steps,
+            lod_distance=lod,
+            buffer_size=buffer_size,
+            elements_per_step=elements_per_step,
+            short_rows=cam.height,
+            pool_size=(
+                default_pool_size(cam.width, cam.height, oversample)
+                if s.pool_size is None
+                else s.pool_size
+            ),
+            # Chunks as wide as without the far-scene planes (a chunk's loop runs
+            # until its slowest plane is done): 64 chunks of the thesis budget
+            # (32 were 1.3-1.7x slower on the tree, MR head and bunny; 128 no faster).
+            chunks=max(
+                64,
+                -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64)),
+            ),
+            with_steps=True,
+        )
+    # The wide traversal warps every busy tile in one step and re-walks every
+    # uncertain pixel in one batch: its dependent steps stay a few tens per frame.
+    color, depth, entered, warp_steps = warp_lists(
         rle,
         cam,
         seg,
-        planes,
-        rows=rows,
-        max_steps=max_steps,
-        lod_distance=lod,
-        buffer_size=buffer_size,
-        elements_per_step=elements_per_step,
-        short_rows=cam.height,
-        pool_size=(
-            default_pool_size(cam.width, cam.height, oversample)
-            if s.pool_size is None
-            else s.pool_size
-        ),
-        # Chunks as wide as without the far-scene planes (a chunk's loop runs
-        # until its slowest plane is done): 64 chunks of the thesis budget
-        # (32 were 1.3-1.7x slower on the tree, MR head and bunny; 128 no faster).
-        chunks=max(
-            64, -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64))
-        ),
-    )
-    color, depth, entered = warp_lists(
-        rle, cam, seg, pool, start, drawn, coverage, first, neighbors=neighbors
+        pool,
+        start,
+        drawn,
+        coverage,
+        first,
+        neighbors=neighbors,
+        batch_tiles=(1 << 30) if wide else None,
+        with_steps=True,
     )
     refined = jnp.int32(0)
+    refine_steps_taken = jnp.int32(0)
     if refine_steps > 0:
         budget = (cam.width * cam.height) // 32 if refine_budget is None else refine_budget
+        batch = budget if wide else 1024
         color, depth, refined = refine_hits(
-            rle, cam, color, depth, steps=refine_steps, mask=~entered, budget=budget
+            rle,
+            cam,
+            color,
+            depth,
+            steps=refine_steps,
+            mask=~entered,
+            budget=budget,
+            batch=batch,
         )
+        refine_steps_taken = refine_steps * ((jnp.minimum(refined, budget) + batch - 1) // batch)
     total = jnp.sum(stats, axis=0)
     return RenderOutput(
         color,
@@ -371,6 +420,8 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             planes=jnp.sum(seg.count),
             refined=refined,
             refine_overflow=jnp.maximum(refined - budget, 0) if refine_steps > 0 else refined,
+            traversal_steps=trav_steps,
+            loop_iterations=trav_steps + warp_steps + refine_steps_taken,
         ),
     )
 

@@ -353,6 +353,7 @@ def traverse_lists(
     pool_size: int | None = None,
     free_steps: int = 4,
     short_rows: int | None = None,
+    with_steps: bool = False,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
@@ -405,6 +406,8 @@ def traverse_lists(
             has (the camera height): chunks of only such planes run with coverage
             maps that long, when that saves at least ``_SPLIT_WORDS`` words
             (None: every chunk has ``rows``).  The same lists either way.
+        with_steps: also return the dependent loop steps taken (every chunk's
+            steps, free steps and copy steps, one after another).
 
     Returns:
         ``(pool (5, pool_size) int32, start (P,) int32, drawn (P,) int32, coverage
@@ -467,7 +470,7 @@ def traverse_lists(
         # in cache), and only the elements drawn are copied into the frame's
         # pool: per-plane lists of K slots for the whole frame cost a fresh
         # P K-word buffer per frame, more than the traversal of a small scene.
-        lists, pool, used, start, drawn, cov, word_first, stats = bufs
+        lists, pool, used, start, drawn, cov, word_first, stats, n_it = bufs
         base = order[i] * size
         part = jax.lax.dynamic_slice(padded, (base,), (size,))
         consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=nw))(
@@ -476,7 +479,7 @@ def traverse_lists(
         dest = jnp.arange(size, dtype=jnp.int32)[:, None]
 
         def one(c, _=None):
-            state, lists = c
+            state, lists, n_free = c
             if free_steps > 0:
                 # Its own loop: with the list buffer out of its carry.
                 # While any plane of the chunk passes a cell, at most
@@ -486,13 +489,14 @@ def traverse_lists(
                     s, go = free(consts, s)
                     return s, jnp.any(go), i + 1
 
-                state = jax.lax.while_loop(
+                state, _, taken = jax.lax.while_loop(
                     lambda f: f[1] & (f[2] < free_steps),
                     pass_cells,
                     (state, jnp.bool_(True), jnp.int32(0)),
-                )[0]
+                )
+                n_free = n_free + taken
             state, slot, words = step(consts, state)
-            return (state, lists.at[dest, :, slot].set(words, mode="drop")), None
+            return (state, lists.at[dest, :, slot].set(words, mode="drop"), n_free), None
 
         # The loop runs outside the vmap: its condition is "any plane still
         # going", so the per-plane done masks do the work.
@@ -505,7 +509,7 @@ def traverse_lists(
             # The design card's form: lax.scan over fixed blocks of steps (a
             # done plane's step changes nothing), the early exit between blocks.
             body = lambda c: jax.lax.scan(one, c, None, block_steps)[0]  # noqa: E731
-        state, lists = jax.lax.while_loop(going, body, (carry0, lists))
+        state, lists, n_free = jax.lax.while_loop(going, body, (carry0, lists, jnp.int32(0)))
         nbuf = state.nbuf
         # The chunk's lists, back to back from the pool's first free slot.
         kept = jnp.minimum(nbuf, K)
@@ -536,6 +540,8 @@ def traverse_lists(
                 jnp.pad(state.first, ((0, 0), (0, n_words - nw)), constant_values=NO_ENTRY),
             ),
             put(stats, st),
+            # Dependent loop steps: the chunk's steps, its free steps and its copy steps.
+            n_it + state.it[0] + n_free + (jnp.max(stored) + 7) // 8,
         )
 
     bufs = (
@@ -547,10 +553,12 @@ def traverse_lists(
         jnp.zeros((Pp, n_words), jnp.uint32),
         jnp.full((Pp, n_words), NO_ENTRY, jnp.int32),
         jnp.zeros((Pp, 4), jnp.int32),
+        jnp.int32(0),
     )
     outs = bufs
     for nw, mine in groups:
         order = jnp.nonzero(mine, size=n_chunks, fill_value=0)[0]
         outs = jax.lax.fori_loop(0, jnp.sum(mine.astype(jnp.int32)), chunk_fn(order, nw), outs)
-    pool, per_plane = outs[1], outs[3:]
-    return (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
+    pool, per_plane, n_it = outs[1], outs[3:8], outs[8]
+    out = (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
+    return out + (n_it,) if with_steps else out
