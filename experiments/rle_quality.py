@@ -11,12 +11,12 @@ Every AA frame shows the same view: :func:`jaxgfx.camera.supersampled`
 renders it on pixels ``1 / fx`` by ``1 / fy`` as large (2x1: half as wide, as
 in the thesis), and :func:`jaxgfx.post.antialias` averages them back.
 
-A second table is the ray caster's acceptance at every distance (issue 15
-item 1): agreement with the per-pixel 3-D DDA (depth within one voxel, same
-colour, % of pixels either hits) for the bunny, the dragon (R = 256) and a
-384 x 256 x 384 crop of ``untitled.vxl``, at the five near cameras of
-``rle_bench`` (512 x 384) and three far ones (256 x 192, the distance set so
-that the object covers about 600 / 1,500 / 4,000 pixels).  ``--quick``: one
+A second table is the ray caster's acceptance at every distance: agreement
+with the per-pixel 3-D DDA (depth within one voxel, same colour, % of pixels
+either hits) for the bunny, the dragon (R = 256) and a 384 x 256 x 384 crop
+of ``untitled.vxl``, at the five near cameras of ``rle_bench`` (512 x 384) and
+three far ones (256 x 192, the distance set so that the object covers about
+600 / 1,500 / 4,000 pixels).  ``--quick``: one
 near and one far camera of the small scene at the quick frame size.
 
 Usage::

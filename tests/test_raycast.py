@@ -277,7 +277,7 @@ def _relief(n=80, h=20):
 
 
 def test_far_view_finds_columns_narrower_than_a_pixel():
-    # Issue 15 item 1: 160 voxels away a voxel is ~0.4 pixel, so a plane per
+    # 160 voxels away a voxel is ~0.4 pixel, so a plane per
     # half pixel misses columns (thesis spacing: 89 % depth, 82 % colour).
     # The planes fitted to the scene, a third of a voxel apart at its far end,
     # keep the acceptance.
@@ -578,3 +578,74 @@ def test_live_rows_keep_every_row_that_can_still_meet_the_scene():
         assert not np.any(loose)
         kept += int(np.sum(meets))
     assert kept > 1000 and int(np.sum(valid)) * 4 > kept  # rows were dropped
+
+
+# ---------------------------------------------------------------------------
+# The wide traversal (a block of cells per plane per loop step) and its batching
+# ---------------------------------------------------------------------------
+
+WIDE = RC.RenderSettings(traversal="wide")
+WIDE_VECTOR = RC.RenderSettings(traversal="wide", batching="vector")
+WIDE_CAMERAS = [CAMERAS[1], CAMERAS[2], CAMERAS[4]]
+
+
+@pytest.mark.parametrize("slots", [None, 64])
+def test_wide_traversal_matches_reference_in_few_steps(scene, slots):
+    # Every plane walks a block of cells per loop step (or 64 planes at a time,
+    # each done plane's slot taking the next): same agreement with the per-pixel
+    # DDA as the one-cell walk, in tens of dependent steps instead of thousands.
+    _, rle, occ, col = scene
+    settings = dataclasses.replace(WIDE, slots=slots)
+    for name, cam in WIDE_CAMERAS:
+        ref, _ = reference(occ, col, cam)
+        out = render(rle, cam, settings=settings)
+        d_ok, c_ok, n = _agreement(out, ref)
+        assert n > 800, name
+        assert d_ok >= DEPTH_AGREE, f"{name}: depth agreement {d_ok:.4f}"
+        assert c_ok >= COLOR_AGREE, f"{name}: colour agreement {c_ok:.4f}"
+        st = {k: int(v) for k, v in out.stats.items()}
+        assert st["buffer_overflow"] == 0
+        assert st["elements_rendered"] <= st["elements_processed"] <= st["elements_total"]
+        limit = 40 if slots is None else 200
+        assert 0 < st["traversal_steps"] <= limit, (name, st["traversal_steps"])
+        narrow = render(rle, cam)  # XLA:CPU's default: the one-cell walk
+        assert int(narrow.stats["traversal_steps"]) > 10 * st["traversal_steps"]
+
+
+def test_vector_batching_matches_frames_and_loop(scene):
+    # The accelerator's rule (one vmapped program: the cameras' planes form one
+    # wider array) against the CPU's (frame by frame, bit-identical to a loop),
+    # both run here.  Batched float arithmetic may round a plane's row bounds
+    # differently, so a few edge pixels may flip; depths agree to 1e-6.
+    _, rle, _, _ = scene
+    cams = [c for _, c in WIDE_CAMERAS] + [
+        look_at([30, 18, -6], [12, 4, 12], fov=55, width=W, height=H)
+    ]
+    stacked = stack_cameras(cams)
+    vec = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=WIDE_VECTOR)))(stacked)
+    per = [render(rle, c, settings=WIDE) for c in cams]
+    steps = [int(o.stats["loop_iterations"]) for o in per]
+    for k, single in enumerate(per):
+        d1, d2 = np.asarray(vec.depth[k]), np.asarray(single.depth)
+        both = np.isfinite(d1) & np.isfinite(d2)
+        same = np.isfinite(d1) == np.isfinite(d2)
+        assert same.mean() >= 0.995
+        rel = np.abs(d1[both] - d2[both]) / np.maximum(d2[both], 1.0)
+        assert np.mean(rel <= 1e-6) >= 0.995
+        assert int(vec.stats["loop_iterations"][k]) == steps[k]
+    # A batch's dependent steps: about its slowest frame's, not their sum.
+    assert max(steps) < 0.5 * sum(steps)
+
+
+def test_batched_render_lowers_for_accelerators(scene):
+    # platform_dependent keeps the accelerator's branch (wide traversal, vmapped
+    # frames) in the program: it lowers for CUDA and TPU without a device.
+    from jax import export
+
+    _, rle, _, _ = scene
+    cams = stack_cameras([c for _, c in WIDE_CAMERAS[:2]])
+    fn = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c).depth))
+    exported = export.export(fn, platforms=("cuda", "tpu"))(cams)
+    assert exported.platforms == ("cuda", "tpu")
+    text = exported.mlir_module()
+    assert "while" in text

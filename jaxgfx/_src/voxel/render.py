@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.camera import Camera, focal_lengths
+from jaxgfx._src.camera import Camera, focal_lengths, pixel_rays
 from jaxgfx._src.checks import check_float, check_int, static_field
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
@@ -129,7 +129,8 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
     return 2.0 * jnp.maximum(fx, fy) / pixels
 
 
-_TRAVERSALS = ("wide", "narrow")
+_TRAVERSALS = ("auto", "wide", "narrow")
+_BATCHINGS = ("auto", "frames", "vector")
 
 
 def _optional_int(name: str, value, low: int) -> int | None:
@@ -151,8 +152,8 @@ class RenderSettings:
         max_steps: bound on the 2-D DDA cells per plane (None: :func:`default_max_steps`).
         oversample: planes per pixel on each segment's far border (1 = thesis
             Eq. 4.4, default 2).
-        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
-            see ``stats["buffer_overflow"]``.
+        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``,
+            the wide traversal ``max(64, max(W, H) // 4)``); see ``stats["buffer_overflow"]``.
         pool_size: drawn elements kept per frame, all planes' lists back to back
             (None: :func:`default_pool_size`, ``3 oversample W H``); see
             ``stats["buffer_overflow"]``.  A frame
@@ -176,6 +177,20 @@ class RenderSettings:
             agreement does not fall with distance; 0 = the thesis's spacing
             (:func:`~jaxgfx.raycast.screen_segments`).  It also raises the default
             ``num_planes`` by ``planes_per_voxel (X + Z)``.
+        traversal: ``"narrow"``: one cell per plane per loop step (thousands of
+            steps a frame, each cheap: XLA:CPU's fastest); ``"wide"``: a block of
+            cells per plane per step (tens of steps, each as wide as all planes:
+            what an accelerator needs, as each step is a kernel launch there);
+            ``"auto"`` (default): the first where the program is lowered for the
+            CPU, the second elsewhere (``jax.lax.platform_dependent``).
+        block_cells: wide traversal: major-axis columns per block (default 16).
+        block_elements: wide traversal: element slots per plane per step (None:
+            ``max(2 max_elements, block_cells, 8)``; at least two columns).
+        slots: wide traversal: planes stepped at once, a done plane's slot taking
+            the next plane (None: all planes every step, fewest steps).
+        batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
+            ``lax.map``), ``"vector"`` (the frames as one vmapped program) or
+            ``"auto"`` (default: frames on the CPU, vector elsewhere).
 
     Raises:
         TypeError: a count that is not an int, an ``oversample`` that is not a number.
@@ -192,9 +207,11 @@ class RenderSettings:
     refine_budget: int | None = static_field(None)
     elements_per_step: int = static_field(4)
     planes_per_voxel: float = static_field(3.0)
-    traversal: str = static_field("wide")
+    traversal: str = static_field("auto")
     block_cells: int = static_field(16)
     block_elements: int | None = static_field(None)
+    slots: int | None = static_field(None)
+    batching: str = static_field("auto")
 
     def __post_init__(self):
         # Normalised to Python ints / floats: equal settings hash alike (one compile).
@@ -211,9 +228,12 @@ class RenderSettings:
             planes_per_voxel=check_float("planes_per_voxel", self.planes_per_voxel),
             block_cells=check_int("block_cells", self.block_cells, low=1),
             block_elements=_optional_int("block_elements", self.block_elements, 1),
+            slots=_optional_int("slots", self.slots, 1),
         )
         if self.traversal not in _TRAVERSALS:
             raise ValueError(f"traversal must be one of {_TRAVERSALS}, got {self.traversal!r}")
+        if self.batching not in _BATCHINGS:
+            raise ValueError(f"batching must be one of {_BATCHINGS}, got {self.batching!r}")
         if fields["planes_per_voxel"] < 0:
             raise ValueError(f"planes_per_voxel must be >= 0, got {fields['planes_per_voxel']}")
         if fields["oversample"] <= 0:
@@ -233,10 +253,18 @@ def render_rle(
 
     ``jax.jit(render_rle)`` needs no static arguments (the :class:`RenderSettings`
     are static pytree metadata).  ``jax.vmap`` over a batched camera (same
-    resolution, :func:`~jaxgfx.camera.stack_cameras`) renders the views one after
-    another inside one program (a ``custom_vmap`` rule): bit-identical to a loop,
-    one compile, no slower per frame; shard the batch over devices to use more
-    cores (:func:`jaxgfx.sweep.sharded_renderer`).
+    resolution, :func:`~jaxgfx.camera.stack_cameras`) is one program (a
+    ``custom_vmap`` rule, :class:`RenderSettings` ``batching``): lowered for the
+    CPU it renders the views one after another (bit-identical to a loop, no slower
+    per frame; shard the batch over devices to use more cores,
+    :func:`jaxgfx.sweep.sharded_renderer`); lowered for an accelerator it renders
+    them as one wider frame, a batch taking about its slowest frame's dependent
+    loop steps.  ``traversal`` picks the one-cell walk (:mod:`.traverse`) on the CPU
+    and the wide-step walk (:mod:`.wide`) elsewhere.
+
+    The depth is differentiable w.r.t. the camera: the traversal's choices are
+    discrete (no gradient flows through them) and each hit pixel's depth carries
+    the derivative of its ray's entry into the level-0 voxel it hit.
 
     The defaults are the settings the acceptance test (agreement with the
     per-pixel 3-D DDA of :func:`reference_render`: depth within one voxel on
@@ -248,8 +276,7 @@ def render_rle(
     neighbouring voxel.  The defaults add (a) two planes per border pixel,
     placed so that pixel-centre planes are kept (:class:`Segments`), and more
     for a far scene, spaced by a third of a voxel at its far end
-    (``planes_per_voxel``; without them a bunny 900 voxels away agrees on 85 %
-    of pixels instead of 99.5 %), (b) an
+    (``planes_per_voxel``: without them the agreement falls with the distance), (b) an
     exact test of the pixel's own ray against the elements of the adjacent
     planes' texels (:func:`warp_lists`: only screen tiles that a drawn element
     covers are warped), and (c) a short exact re-walk
@@ -271,15 +298,93 @@ def render_rle(
 
     Returns:
         :class:`RenderOutput` with colour (H, W, 3), depth (H, W) and counters
-        (``refined``: pixels that asked for a re-walk).
+        (``refined``: pixels that asked for a re-walk; ``traversal_steps`` and
+        ``loop_iterations``: the dependent loop steps of the traversal and of the
+        whole frame, traversal + warp + re-walk).
     """
     s = RenderSettings() if settings is None else settings
     # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
     # become constants here; device buffers pass through unchanged.
     rle = jax.tree_util.tree_map(jnp.asarray, rle)
-    frame = jax.custom_batching.custom_vmap(functools.partial(_render_frame, s))
-    frame.def_vmap(functools.partial(_frames_one_by_one, functools.partial(_render_frame, s)))
-    return frame(rle, cam, jnp.asarray(lod_distance, jnp.float32))
+    frame_fn = functools.partial(_render_auto, s)
+    frame = jax.custom_batching.custom_vmap(frame_fn)
+    frame.def_vmap(functools.partial(_batch_rule, s.batching, frame_fn))
+    # The traversal picks voxels (discrete); the depth's derivative w.r.t. the
+    # camera is that of the hit voxel's box entry along the pixel's ray.
+    fixed = jax.tree_util.tree_map(jax.lax.stop_gradient, cam)
+    out = frame(rle, fixed, jax.lax.stop_gradient(jnp.asarray(lod_distance, jnp.float32)))
+    return out._replace(depth=_differentiable_depth(cam, out.depth))
+
+
+def _differentiable_depth(cam: Camera, depth):
+    """``depth``, with the derivative w.r.t. ``cam`` of the hit voxel's entry along each ray.
+
+    The hit point just past ``depth`` names the voxel; the slab test of the pixel's
+    ray against that unit box gives its entry ``t``, whose value is replaced by
+    ``depth`` (the same number up to rounding) and whose gradient is kept.  Misses
+    keep ``+inf`` and a zero gradient.
+    """
+    hit = jnp.isfinite(depth)
+    t = jnp.where(hit, depth, 0.0)
+    origins, dirs = pixel_rays(cam, normalize=False)
+    o_fixed, d_fixed = jax.lax.stop_gradient((origins, dirs))
+    p = o_fixed + d_fixed * (t + 1e-3)[..., None]
+    lo = jnp.floor(p)
+    t_enter = jnp.full(depth.shape, -jnp.inf)
+    for k in range(3):
+        dk = dirs[..., k]
+        safe = jnp.where(jnp.abs(dk) < 1e-12, 1e-12, dk)
+        t0 = (lo[..., k] - origins[..., k]) / safe
+        t1 = (lo[..., k] + 1.0 - origins[..., k]) / safe
+        near = jnp.where(jnp.abs(dk) < 1e-12, -jnp.inf, jnp.minimum(t0, t1))
+        t_enter = jnp.maximum(t_enter, near)
+    t_enter = jnp.where(hit & jnp.isfinite(t_enter), t_enter, 0.0)
+    return jnp.where(hit, depth + (t_enter - jax.lax.stop_gradient(t_enter)), depth)
+
+
+def _render_auto(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
+    """One frame; ``traversal="auto"`` picks by the platform the program is lowered for.
+
+    XLA:CPU runs the one-cell walk faster; an accelerator pays per dependent step
+    (a kernel launch each), so it gets the wide traversal.  Only the chosen
+    branch is compiled.
+    """
+    if s.traversal != "auto":
+        return _render_frame(s, rle, cam, lod)
+    narrow = dataclasses.replace(s, traversal="narrow")
+    wide = dataclasses.replace(s, traversal="wide")
+    return jax.lax.platform_dependent(
+        rle,
+        cam,
+        lod,
+        cpu=functools.partial(_render_frame, narrow),
+        default=functools.partial(_render_frame, wide),
+    )
+
+
+def _batch_rule(batching, fn, axis_size, in_batched, *args):
+    """vmap rule of :func:`render_rle`: frame by frame on XLA:CPU, one wide program elsewhere.
+
+    ``batching="frames"``: :func:`_frames_one_by_one`; ``"vector"``: plain ``vmap``
+    of the frame, the cameras' planes one wider array and every loop batched (a
+    batch takes about as many dependent steps as its slowest frame); ``"auto"``:
+    the first where the program is lowered for the CPU, the second elsewhere.
+    """
+
+    def vector(*a):
+        axes = jax.tree_util.tree_map(lambda b: 0 if b else None, list(in_batched))
+        return jax.vmap(fn, in_axes=tuple(axes))(*a)
+
+    def frames(*a):
+        return _frames_one_by_one(fn, axis_size, in_batched, *a)[0]
+
+    if batching == "frames":
+        out = frames(*args)
+    elif batching == "vector":
+        out = vector(*args)
+    else:
+        out = jax.lax.platform_dependent(*args, cpu=frames, default=vector)
+    return out, jax.tree_util.tree_map(lambda _: True, out)
 
 
 def _frames_one_by_one(fn, axis_size, in_batched, *args):
@@ -350,6 +455,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             buffer_size=buffer_size,
             block_cells=s.block_cells,
             block_elements=s.block_elements,
+            slots=s.slots,
         )
     else:
         pool, start, drawn, coverage, first, stats, trav_steps = traverse_lists(
@@ -369,8 +475,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
                 else s.pool_size
             ),
             # Chunks as wide as without the far-scene planes (a chunk's loop runs
-            # until its slowest plane is done): 64 chunks of the thesis budget
-            # (32 were 1.3-1.7x slower on the tree, MR head and bunny; 128 no faster).
+            # until its slowest plane is done): 64 chunks of the thesis budget.
             chunks=max(
                 64,
                 -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64)),

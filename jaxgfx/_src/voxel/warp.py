@@ -176,8 +176,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     cand_t = candidate_t(*lookup(offs)[::2])  # (2 neighbors + 1, H, W)
     best_t = jnp.min(cand_t, axis=0)
     best_d = offs[jnp.argmin(cand_t, axis=0), 0, 0]
-    # Keep only the chosen plane offset and look it up again: carrying the
-    # candidate's index and depth together makes XLA:CPU ~10x slower here.
+    # Keep only the chosen plane offset and look it up again: XLA:CPU runs the
+    # warp far slower carrying the candidate's index and depth together.
     best_d = jax.lax.optimization_barrier(best_d)
     hit, idx, box = lookup(best_d)
     t_enter, t_exit = _box_hit(box, origins, dirs)
@@ -227,8 +227,7 @@ def warp_lists(
     plane's list front to back for the first element covering the row, from the
     first entry that drew in the row's coverage word when ``first`` is given
     (a row no entry drew is skipped), so neither the per-texel index array nor
-    the coverage trees are built.  Starting at the word's entry: 0.70-0.78x the
-    warp's time on the R = 256 bunny (512x384 2x1), the same frames.
+    the coverage trees are built.
 
     Args:
         pool, start, drawn, coverage: the lists (``(5, N)`` words, each plane's
@@ -309,7 +308,7 @@ def warp_lists(
 
         # The first list element covering the row (lists run front to back).  The
         # scan stops once no pixel of the batch is still looking, not at the longest
-        # list's end (bunny R = 256, 512x384 2x1: 1350 -> 1004 steps a frame).
+        # list's end.
         def scan_list(state):
             step, entry, _ = state
             j = j0 + step

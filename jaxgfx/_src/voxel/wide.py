@@ -331,6 +331,7 @@ def traverse_wide(
     block_cells: int = 16,
     block_elements: int | None = None,
     max_iterations: int | None = None,
+    slots: int | None = None,
 ):
     """Renders all planes into ray-buffer lists in wide steps (4.5.4; see the module docstring).
 
@@ -347,8 +348,12 @@ def traverse_wide(
         block_elements: static element slots per plane per step (default
             :func:`default_block_elements`); a block ends before the column that
             would pass them.
-        max_iterations: static bound on the loop steps (default: enough for
-            every plane to cross the map at level 0).
+        max_iterations: static bound on the loop steps (default: one per level-0
+            column a plane can cross, times the rounds of slots).
+        slots: static; None: every plane steps in every loop step (a done
+            plane's step is idle work).  An int: that many planes step at a time,
+            a done plane's slot taking the next live plane (more loop steps, each
+            narrower; the same lists).
 
     Returns:
         ``(pool (5, P K) int32, start (P,), drawn (P,), coverage (P, W) uint32,
@@ -366,7 +371,8 @@ def traverse_wide(
     P = planes.shape[0]
     search_steps = max(1, int(np.ceil(np.log2(E + 1))))
     if max_iterations is None:
-        max_iterations = -(-(rle.shape[0] + rle.shape[2] + 2) // K) * max(1, -(-E // (M // 2))) + 4
+        # Every step moves a live plane over at least one column (M holds two).
+        max_iterations = rle.shape[0] + rle.shape[2] + 2 + rle.levels
     consts, c0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=n_words))(
         planes
     )
@@ -388,22 +394,83 @@ def traverse_wide(
     step = jax.vmap(
         lambda q, s: _wide_step(rle, cam, q, s, lod, K=K, M=M, n_words=n_words, above=above)
     )
-    pidx = jnp.arange(P, dtype=jnp.int32)[:, None]
-
-    def body(carry):
-        state, lists, it = carry
-        state, slots, words = step(consts, state)
-        slots = jnp.where(slots < Kb, slots, Kb)
-        lists = lists.at[:, pidx, slots].set(jnp.moveaxis(words, -1, 0), mode="drop")
-        return state, lists, it + 1
-
-    def going(carry):
-        return jnp.any(~carry[0].done) & (carry[2] < max_iterations)
-
     lists0 = jnp.zeros((ELEMENT_WORDS, P, Kb), jnp.int32)
-    state, lists, it = jax.lax.while_loop(going, body, (state0, lists0, jnp.int32(0)))
+    if slots is None or slots >= P:
+        state, lists, it = _walk_all(step, consts, state0, lists0, Kb, max_iterations)
+    else:
+        max_iterations = max_iterations * -(-P // slots)
+        state, lists, it = _walk_slots(step, consts, state0, lists0, Kb, slots, max_iterations)
     drawn = jnp.minimum(state.nbuf, Kb)
     lost = jnp.maximum(state.nbuf - Kb, 0)
     stats = jnp.concatenate([state.stats, lost[:, None]], axis=1)
     start = jnp.arange(P, dtype=jnp.int32) * Kb
     return lists.reshape(ELEMENT_WORDS, P * Kb), start, drawn, state.cov, state.first, stats, it
+
+
+def _append(lists, pid, slots, words, Kb):
+    """Writes drawn elements' words at their list slots of plane ``pid`` (past ``Kb``: dropped)."""
+    slots = jnp.where(slots < Kb, slots, Kb)
+    return lists.at[:, pid[:, None], slots].set(jnp.moveaxis(words, -1, 0), mode="drop")
+
+
+def _walk_all(step, consts, state0, lists0, Kb, max_iterations):
+    """Every plane steps in every iteration until all are done (a done plane's step is idle)."""
+    pid = jnp.arange(state0.done.shape[0], dtype=jnp.int32)
+
+    def body(carry):
+        state, lists, it = carry
+        state, slots, words = step(consts, state)
+        return state, _append(lists, pid, slots, words, Kb), it + 1
+
+    def going(carry):
+        return jnp.any(~carry[0].done) & (carry[2] < max_iterations)
+
+    return jax.lax.while_loop(going, body, (state0, lists0, jnp.int32(0)))
+
+
+def _walk_slots(step, consts, state0, lists0, Kb, S, max_iterations):
+    """``S`` slots step; a slot whose plane is done takes the next plane not yet started.
+
+    Planes that start done (past the frame's count, no rows) are never queued.  A
+    finished plane's state is written back to its row of the per-plane state, so
+    the result is the one of :func:`_walk_all`, with every step as wide as the
+    slots instead of the plane budget.
+    """
+    P = state0.done.shape[0]
+    queue = jnp.nonzero(~state0.done, size=P, fill_value=P)[0].astype(jnp.int32)
+    n_live = jnp.sum((~state0.done).astype(jnp.int32))
+    take = lambda tree, i: jax.tree_util.tree_map(lambda a: a[jnp.minimum(i, P - 1)], tree)  # noqa: E731
+
+    def load(i):
+        st = take(state0, i)
+        return st._replace(done=st.done | (i >= P))
+
+    pid0 = queue[:S]
+    carry0 = (load(pid0), pid0, jnp.minimum(n_live, S), state0, lists0, jnp.int32(0))
+
+    def body(carry):
+        state, pid, nxt, out, lists, it = carry
+        state, slots, words = step(take(consts, pid), state)
+        lists = _append(lists, pid, slots, words, Kb)
+        # Finished planes go back to their rows; their slots take queued planes.
+        fin = state.done
+        dest = jnp.where(fin & (pid < P), pid, P)
+        out = jax.tree_util.tree_map(lambda o, v: o.at[dest].set(v, mode="drop"), out, state)
+        rank = _prefix_sum(fin.astype(jnp.int32)) - 1
+        q = nxt + rank
+        new = jnp.where(q < n_live, queue[jnp.minimum(q, P - 1)], P)
+        new = jnp.where(fin, new, pid)
+        fresh = load(new)
+        state = jax.tree_util.tree_map(
+            lambda a, b: jnp.where(fin.reshape(fin.shape + (1,) * (a.ndim - 1)), b, a),
+            state,
+            fresh,
+        )
+        nxt = jnp.minimum(nxt + jnp.sum(fin.astype(jnp.int32)), n_live)
+        return state, new, nxt, out, lists, it + 1
+
+    def going(carry):
+        return jnp.any(~carry[0].done) & (carry[5] < max_iterations)
+
+    _, _, _, out, lists, it = jax.lax.while_loop(going, body, carry0)
+    return out, lists, it
