@@ -67,10 +67,11 @@ THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0, planes_p
 LOD_DISTANCE = 96.0
 # The two traversals, timed beside the default in the same run: the wide one
 # with every plane in every step (the accelerator's form), and with 512 plane
-# slots (a done plane's slot takes the next plane: narrower, more steps).
+# slots of 16-column blocks (a done plane's slot takes the next plane: narrower
+# steps, more of them).
 NARROW = RC.RenderSettings(traversal="narrow")
 WIDE = RC.RenderSettings(traversal="wide")
-WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512)
+WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
 
 
 def markdown(rows, headers) -> str:
@@ -253,6 +254,8 @@ def agreement(out_depth, out_color, ref_depth, ref_color):
 def run(args):
     quick = args.quick
     sizes = [(128, 96)] if quick else [(512, 384), (1024, 768)]
+    if args.sizes:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     aa = args.aa
     base_limit = 256 * 192 if quick else 512 * 384
     n_cams = 2 if quick else 3
@@ -529,6 +532,7 @@ def main(argv=None) -> int:
         help="horizontal supersampling (1: one ray per pixel, as Embree's)",
     )
     ap.add_argument("--no-instances", action="store_true", help="skip the instance table")
+    ap.add_argument("--sizes", default=None, help="frame sizes, e.g. 512x384 (default: all)")
     args = ap.parse_args(argv)
     # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
     import jaxgfx

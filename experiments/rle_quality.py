@@ -120,6 +120,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "narrow"),
+                    help="RenderSettings.traversal of the renders checked")  # fmt: skip
     args = ap.parse_args(argv)
     w, h = (96, 72) if args.quick else (256, 192)
     res = 48 if args.quick else 128
@@ -136,7 +138,8 @@ def main(argv=None) -> int:
     X, Y, Z = vox.shape
     c = np.array([X / 2, Y / 2, Z / 2])
     eye = c + np.array([0.55 * X, 0.2 * Y, 0.6 * Z])
-    render = jax.jit(RC.render_rle)
+    settings = RC.RenderSettings(traversal=args.traversal)
+    render = jax.jit(lambda r, c: RC.render_rle(r, c, settings=settings))
     shaded = jax.jit(
         lambda cam, col, dep: post.shade(
             col,

@@ -152,8 +152,8 @@ class RenderSettings:
         max_steps: bound on the 2-D DDA cells per plane (None: :func:`default_max_steps`).
         oversample: planes per pixel on each segment's far border (1 = thesis
             Eq. 4.4, default 2).
-        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``,
-            the wide traversal ``max(64, max(W, H) // 4)``); see ``stats["buffer_overflow"]``.
+        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
+            see ``stats["buffer_overflow"]``.
         pool_size: drawn elements kept per frame, all planes' lists back to back
             (None: :func:`default_pool_size`, ``3 oversample W H``); see
             ``stats["buffer_overflow"]``.  A frame
@@ -495,6 +495,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         first,
         neighbors=neighbors,
         batch_tiles=(1 << 30) if wide else None,
+        scan_width=8 if wide else 1,
         with_steps=True,
     )
     refined = jnp.int32(0)

@@ -214,6 +214,7 @@ def warp_lists(
     neighbors: int = 1,
     tile: int = 8,
     batch_tiles: int | None = None,
+    scan_width: int = 1,
     with_steps: bool = False,
 ):
     """:func:`warp_ray_buffer` from the unresolved lists, touching only covered pixels.
@@ -241,6 +242,8 @@ def warp_lists(
         batch_tiles: static tiles warped per loop step (None: ``4096 / tile^2``;
             at least the screen's tile count: every busy tile in one step, so the
             warp's dependent steps are one list scan).
+        scan_width: static list entries a pixel tests per loop step (the same
+            frame; fewer, wider steps).
         with_steps: also return the dependent loop steps taken (list-scan steps
             summed over the batches).
 
@@ -309,13 +312,16 @@ def warp_lists(
         # The first list element covering the row (lists run front to back).  The
         # scan stops once no pixel of the batch is still looking, not at the longest
         # list's end.
+        # Each step tests scan_width entries, in list order.
         def scan_list(state):
             step, entry, _ = state
-            j = j0 + step
-            r0, r1 = unpack_drawn_rows(jnp.take(flat, base + (WORD_ROWS * cap + j), mode="clip"))
-            found = (entry == none) & (j < n) & (r0 <= row) & (row < r1)
-            entry = jnp.where(found, j, entry)
-            return step + 1, entry, jnp.any((entry == none) & (j + 1 < n))
+            j = j0 + step * scan_width
+            for u in range(scan_width):
+                at = base + (WORD_ROWS * cap + j + u)
+                r0, r1 = unpack_drawn_rows(jnp.take(flat, at, mode="clip"))
+                found = (entry == none) & (j + u < n) & (r0 <= row) & (row < r1)
+                entry = jnp.where(found, j + u, entry)
+            return step + 1, entry, jnp.any((entry == none) & (j + scan_width < n))
 
         init = (jnp.int32(0), jnp.full(n.shape, none), jnp.any(j0 < n))
         taken, entry, _ = jax.lax.while_loop(lambda s: s[2], scan_list, init)

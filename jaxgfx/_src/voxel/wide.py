@@ -63,7 +63,7 @@ __all__ = ["traverse_wide", "default_block_elements"]
 
 def default_block_elements(max_elements: int, block_cells: int) -> int:
     """Element slots per plane per step: at least two whole columns (:func:`traverse_wide`)."""
-    return int(max(2 * max_elements, block_cells, 8))
+    return int(max(2 * max_elements, 2 * block_cells, 8))
 
 
 class _WideState(NamedTuple):
@@ -189,7 +189,8 @@ def _block_cells(rle, cam: Camera, consts: _PlaneConsts, state: _WideState, lod,
     t_near = (near - e_a) * inv_a
     t_in = jnp.maximum(t_near, t)
     t_out = jnp.minimum((far - e_a) * inv_a, consts.t_far)
-    col_ok = (t_in < t_out) & (mk >= 0) & (mk < size_a) & ((k == 0) | (t_near < band))
+    # A column the walk only touches (the eye on its far face) stays in the walk.
+    col_ok = (t_in < consts.t_far) & (mk >= 0) & (mk < size_a) & ((k == 0) | (t_near < band))
     col_ok = jnp.cumsum(col_ok.astype(jnp.int32)) == k + 1  # a prefix of the columns
     # Minor-axis cells at the column's entry and exit: one cell, or two when the
     # line crosses a minor-axis face inside the column (|h_b| <= |h_a|).
@@ -328,7 +329,7 @@ def traverse_wide(
     rows: int,
     lod_distance: jax.Array,
     buffer_size: int | None = None,
-    block_cells: int = 16,
+    block_cells: int = 32,
     block_elements: int | None = None,
     max_iterations: int | None = None,
     slots: int | None = None,
@@ -342,7 +343,7 @@ def traverse_wide(
         planes: (P,) int32 plane indices (those past ``sum(seg.count)`` stay empty).
         rows: static column length.
         lod_distance: () horizontal distance where mip level 1 starts.
-        buffer_size: static drawn elements kept per plane (default ``max(64, rows // 4)``);
+        buffer_size: static drawn elements kept per plane (default ``max(64, rows // 2)``);
             the overflow (farthest elements) is counted in the last stat.
         block_cells: static major-axis columns per block (up to two cells each).
         block_elements: static element slots per plane per step (default
@@ -366,7 +367,7 @@ def traverse_wide(
     M = default_block_elements(E, K) if block_elements is None else int(block_elements)
     if M < 2 * E:
         raise ValueError(f"block_elements must hold two columns of {E} elements, got {M}")
-    Kb = max(64, rows // 4) if buffer_size is None else int(buffer_size)
+    Kb = max(64, rows // 2) if buffer_size is None else int(buffer_size)
     n_words = -(-rows // 32)
     P = planes.shape[0]
     search_steps = max(1, int(np.ceil(np.log2(E + 1))))
