@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +13,7 @@ import pytest
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
 from jaxgfx._src.voxel import texels, traverse, warp
+from jaxgfx._src.voxel.wide import traverse_wide
 from jaxgfx.camera import (
     camera_basis,
     camera_from_degrees,
@@ -589,16 +591,14 @@ WIDE_VECTOR = RC.RenderSettings(traversal="wide", batching="vector")
 WIDE_CAMERAS = [CAMERAS[1], CAMERAS[2], CAMERAS[4]]
 
 
-@pytest.mark.parametrize("slots", [None, 64])
-def test_wide_traversal_matches_reference_in_few_steps(scene, slots):
-    # Every plane walks a block of cells per loop step (or 64 planes at a time,
-    # each done plane's slot taking the next): same agreement with the per-pixel
-    # DDA as the one-cell walk, in tens of dependent steps instead of thousands.
+def test_wide_traversal_matches_reference_in_few_steps(scene):
+    # Every plane walks a block of cells per loop step: the same agreement with
+    # the per-pixel DDA as the one-cell walk, in tens of dependent steps instead
+    # of thousands.
     _, rle, occ, col = scene
-    settings = dataclasses.replace(WIDE, slots=slots)
     for name, cam in WIDE_CAMERAS:
         ref, _ = reference(occ, col, cam)
-        out = render(rle, cam, settings=settings)
+        out = render(rle, cam, settings=WIDE)
         d_ok, c_ok, n = _agreement(out, ref)
         assert n > 800, name
         assert d_ok >= DEPTH_AGREE, f"{name}: depth agreement {d_ok:.4f}"
@@ -606,10 +606,34 @@ def test_wide_traversal_matches_reference_in_few_steps(scene, slots):
         st = {k: int(v) for k, v in out.stats.items()}
         assert st["buffer_overflow"] == 0
         assert st["elements_rendered"] <= st["elements_processed"] <= st["elements_total"]
-        limit = 40 if slots is None else 200
-        assert 0 < st["traversal_steps"] <= limit, (name, st["traversal_steps"])
+        assert 0 < st["traversal_steps"] <= 20, (name, st["traversal_steps"])
+        assert st["loop_iterations"] <= 60, (name, st["loop_iterations"])
         narrow = render(rle, cam)  # XLA:CPU's default: the one-cell walk
-        assert int(narrow.stats["traversal_steps"]) > 10 * st["traversal_steps"]
+        assert int(narrow.stats["traversal_steps"]) > 20 * st["traversal_steps"]
+
+
+@functools.partial(jax.jit, static_argnames=("slots",))
+def _wide_lists(rle, cam, slots):
+    n = RC.default_num_planes(W, H, 2.0, scene_shape=rle.shape, planes_per_voxel=3.0)
+    seg = RC.screen_segments(
+        cam, RC.vanishing_point(cam), num_planes=n, oversample=2.0, scene_shape=rle.shape,
+        planes_per_voxel=3.0,
+    )  # fmt: skip
+    planes = jnp.arange(n, dtype=jnp.int32)
+    return traverse_wide(rle, cam, seg, planes, rows=W, lod_distance=jnp.inf, slots=slots)
+
+
+def test_plane_slots_draw_the_same_lists(scene):
+    # 40 planes at a time, each done plane's slot taking the next queued plane:
+    # the lists of every plane stepping in every step, with narrower steps.
+    _, rle, _, _ = scene
+    cam = CAMERAS[2][1]
+    every = _wide_lists(rle, cam, None)
+    slots = _wide_lists(rle, cam, 40)
+    for a, b in zip(every[:-1], slots[:-1]):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert int(np.sum(every[2])) > 1000
+    assert int(slots[-1]) > int(every[-1])
 
 
 def test_vector_batching_matches_frames_and_loop(scene):
