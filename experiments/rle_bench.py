@@ -432,28 +432,41 @@ def run(args):
             out_px = f_px(cams[0])  # the same program: lod_distance is traced
             r["px_lod"] = round(px_lod, 1)
             r["px_lod_el_processed_M"] = round(int(out_px.stats["elements_processed"]) / 1e6, 3)
-            built.append((r, (fn, f_px), f_sp, (out, out_px)))
+            r["_px_covered"] = float(np.isfinite(np.asarray(out_px.depth)).mean())
+            r["px_lod_iters"] = int(out_px.stats["loop_iterations"])
+            f_wpx = None
+            if not quick:  # the wide traversal at the same LOD (CI time: not in quick)
+                f_wpx = lambda cam, s=jscene, d=px_lod: render(
+                    s, cam, lod_distance=d, settings=WIDE
+                )  # noqa: E731
+                r["wide_px_lod_iters"] = int(f_wpx(cams[0]).stats["loop_iterations"])
+            built.append((r, (fn, f_px, f_wpx), f_sp, (out, out_px)))
         # Interleaved rounds: every instance count sees the same machine state,
         # so drift between sections does not skew the time / 1 instance ratios.
         t_ours = [[[] for _ in cams] for _ in built]
         t_px = [[[] for _ in cams] for _ in built]
+        t_wpx = [[[] for _ in cams] for _ in built]
         # Process CPU time too: XLA:CPU splits big fused ops over both cores
         # and its idle worker spins, so on this box CPU time runs up to 2x the
         # wall time, and load from other processes disturbs it less.
         c_ours = [[[] for _ in cams] for _ in built]
         t_splat = [[[] for _ in cams] for _ in built]
         for _ in range(2 if quick else 5):
-            for b, (_, (fn, f_px), f_sp, _) in enumerate(built):
+            for b, (_, (fn, f_px, f_wpx), f_sp, _) in enumerate(built):
                 for i, cam in enumerate(cams):
                     c0 = time.process_time()
                     t_ours[b][i].append(clock(fn, cam))
                     c_ours[b][i].append(time.process_time() - c0)
                     t_px[b][i].append(clock(f_px, cam))
+                    if f_wpx is not None:
+                        t_wpx[b][i].append(clock(f_wpx, cam))
                     if f_sp is not None:
                         t_splat[b][i].append(clock(f_sp, cam))
         # Ratios against the first row (one instance).
         base, base_cpu, base_px = steady(t_ours[0]), steady(c_ours[0]), steady(t_px[0])
         base_cov = built[0][0]["_covered"]
+        base_px_cov = built[0][0]["_px_covered"]
+        base_wpx = steady(t_wpx[0]) if t_wpx[0][0] else None
         hundred = next((steady(t) for t, x in zip(t_ours, built) if x[0]["instances"] == 100), None)
         for b, (r, _, f_sp, _) in enumerate(built):
             ours, cpu = steady(t_ours[b]), steady(c_ours[b])
@@ -474,6 +487,13 @@ def run(args):
             px = steady(t_px[b])
             r["px_lod_ms"] = round(1e3 * px, 1)
             r["px_lod/1 instance"] = round(px / base_px, 2)
+            # Per covered pixel: the time ratio over the covered-pixel ratio.
+            cov_ratio = r.pop("_px_covered") / base_px_cov
+            r["px_lod_per_pixel/1 instance"] = round(px / base_px / cov_ratio, 2)
+            if base_wpx is not None:
+                wpx = steady(t_wpx[b])
+                r["wide_px_lod_ms"] = round(1e3 * wpx, 1)
+                r["wide_px_lod_per_pixel/1 instance"] = round(wpx / base_wpx / cov_ratio, 2)
             print(json.dumps(r))
             scale_rows.append(r)
         # The figure: the forest as a user would show it, on its ground (quick: the
@@ -559,7 +579,9 @@ def main(argv=None) -> int:
     h3 = ["scene", "instances", "map", "voxels", "ours_bytes", "splat_bytes", "ours_ms",
           "time/1 instance", "covered_pct", "covered/1 instance", "time/100 instances",
           "ours_cpu_ms", "cpu/1 instance", "ours_compile_s", "el_processed_M",
-          "el_rendered_M", "px_lod", "px_lod_ms", "px_lod/1 instance", "px_lod_el_processed_M",
+          "el_rendered_M", "px_lod", "px_lod_ms", "px_lod/1 instance",
+          "px_lod_per_pixel/1 instance", "px_lod_iters", "wide_px_lod_ms",
+          "wide_px_lod_per_pixel/1 instance", "wide_px_lod_iters", "px_lod_el_processed_M",
           "splat_ms", "splat/ours"]  # fmt: skip
     h4 = ["scene", "resolution", "shape", "voxels", "rle_elements_M", "bits_per_voxel",
           "bits_level0_only", "thesis_bits_per_voxel", "bytes_per_voxel_with_color",
