@@ -482,8 +482,10 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             ),
             with_steps=True,
         )
-    # The wide traversal warps every busy tile in one step and re-walks every
-    # uncertain pixel in one batch: its dependent steps stay a few tens per frame.
+    # The accelerator's form (every plane in every step) warps every busy tile in
+    # one step and re-walks every uncertain pixel in one batch: its dependent steps
+    # stay a few tens per frame.  Plane slots are the CPU's form: batched warp.
+    wide = wide and s.slots is None
     color, depth, entered, warp_steps = warp_lists(
         rle,
         cam,
