@@ -591,14 +591,16 @@ WIDE_VECTOR = RC.RenderSettings(traversal="wide", batching="vector")
 WIDE_CAMERAS = [CAMERAS[1], CAMERAS[2], CAMERAS[4]]
 
 
-def test_wide_traversal_matches_reference_in_few_steps(scene):
+def test_wide_traversal_matches_reference_and_batches_as_one_program(scene):
     # Every plane walks a block of cells per loop step: the same agreement with
     # the per-pixel DDA as the one-cell walk, in tens of dependent steps instead
     # of thousands.
     _, rle, occ, col = scene
+    per = []
     for name, cam in WIDE_CAMERAS:
         ref, _ = reference(occ, col, cam)
         out = render(rle, cam, settings=WIDE)
+        per.append(out)
         d_ok, c_ok, n = _agreement(out, ref)
         assert n > 800, name
         assert d_ok >= DEPTH_AGREE, f"{name}: depth agreement {d_ok:.4f}"
@@ -610,6 +612,22 @@ def test_wide_traversal_matches_reference_in_few_steps(scene):
         assert st["loop_iterations"] <= 60, (name, st["loop_iterations"])
         narrow = render(rle, cam)  # XLA:CPU's default: the one-cell walk
         assert int(narrow.stats["traversal_steps"]) > 20 * st["traversal_steps"]
+    # The accelerator's vmap rule (one vmapped program: the cameras' planes form
+    # one wider array) against the frames rendered one by one, both run here.
+    # Batched float arithmetic may round a plane's set-up differently, so a few
+    # edge pixels may flip; depths agree to 1e-6.
+    stacked = stack_cameras([c for _, c in WIDE_CAMERAS])
+    vec = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=WIDE_VECTOR)))(stacked)
+    steps = [int(o.stats["loop_iterations"]) for o in per]
+    for k, single in enumerate(per):
+        d1, d2 = np.asarray(vec.depth[k]), np.asarray(single.depth)
+        both = np.isfinite(d1) & np.isfinite(d2)
+        assert np.mean(np.isfinite(d1) == np.isfinite(d2)) >= 0.995
+        rel = np.abs(d1[both] - d2[both]) / np.maximum(d2[both], 1.0)
+        assert np.mean(rel <= 1e-6) >= 0.995
+        assert int(vec.stats["loop_iterations"][k]) == steps[k]
+    # A batch's dependent steps: about its slowest frame's, not their sum.
+    assert max(steps) < 0.5 * sum(steps)
 
 
 @functools.partial(jax.jit, static_argnames=("slots",))
@@ -634,31 +652,6 @@ def test_plane_slots_draw_the_same_lists(scene):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert int(np.sum(every[2])) > 1000
     assert int(slots[-1]) > int(every[-1])
-
-
-def test_vector_batching_matches_frames_and_loop(scene):
-    # The accelerator's rule (one vmapped program: the cameras' planes form one
-    # wider array) against the CPU's (frame by frame, bit-identical to a loop),
-    # both run here.  Batched float arithmetic may round a plane's row bounds
-    # differently, so a few edge pixels may flip; depths agree to 1e-6.
-    _, rle, _, _ = scene
-    cams = [c for _, c in WIDE_CAMERAS] + [
-        look_at([30, 18, -6], [12, 4, 12], fov=55, width=W, height=H)
-    ]
-    stacked = stack_cameras(cams)
-    vec = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=WIDE_VECTOR)))(stacked)
-    per = [render(rle, c, settings=WIDE) for c in cams]
-    steps = [int(o.stats["loop_iterations"]) for o in per]
-    for k, single in enumerate(per):
-        d1, d2 = np.asarray(vec.depth[k]), np.asarray(single.depth)
-        both = np.isfinite(d1) & np.isfinite(d2)
-        same = np.isfinite(d1) == np.isfinite(d2)
-        assert same.mean() >= 0.995
-        rel = np.abs(d1[both] - d2[both]) / np.maximum(d2[both], 1.0)
-        assert np.mean(rel <= 1e-6) >= 0.995
-        assert int(vec.stats["loop_iterations"][k]) == steps[k]
-    # A batch's dependent steps: about its slowest frame's, not their sum.
-    assert max(steps) < 0.5 * sum(steps)
 
 
 def test_batched_render_lowers_for_accelerators(scene):
