@@ -36,8 +36,9 @@ A reader's table of contents: thesis section -> function (implementation in
 4.5.4-4.5.5 Rasterizing and displaying the ray buffer:
     the per-plane traversal into ray-buffer lists (2-D DDA per plane, Eq. 4.5 projection,
     floating horizon and coverage culling) and the warp to the screen (Eq. 4.6) are stages
-    of :func:`render_rle`, importable from ``jaxgfx._src.voxel.traverse`` and
-    ``jaxgfx._src.voxel.warp``.
+    of :func:`render_rle`, importable from ``jaxgfx._src.voxel.traverse`` (one cell per
+    plane per loop step), ``jaxgfx._src.voxel.wide`` (a block of cells per plane per step:
+    tens of steps a frame) and ``jaxgfx._src.voxel.warp``.
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
     :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
