@@ -15,10 +15,9 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
 3.4.3 CSG terrain with spatial bins (Fig. 3.5; 50 000 operations in 3.5.2), ``csg.py``:
     :class:`CSGTerrain`, :func:`csg_terrain`, :func:`random_csg_terrain`,
     ``PRIMITIVE_SPHERE`` / ``PRIMITIVE_BOX`` / ``PRIMITIVE_CYLINDER``.
-3.5.2 elevation files (GeoTIFF, SRTM .hgt, ESRI .asc, USGS .dem, images, arrays),
-``elevation.py``: :func:`read_heightmap` (:class:`HeightmapData`: heights, metres per
-    sample along x and z, height unit, CRS), :func:`load_heightmap`,
-    :func:`metres_per_degree`.
+3.5.2 Elevation files (GeoTIFF, SRTM .hgt, ESRI .asc, USGS .dem, images, arrays), ``elevation.py``:
+    :func:`read_heightmap` (:class:`HeightmapData`: heights, metres per sample along x
+    and z, height unit, CRS), :func:`load_heightmap`, :func:`metres_per_degree`.
 3.5.2 height maps (Fig. 3.16) and 3.3.1 existing volumes, ``heightmap.py``:
     :func:`heightmap_terrain` (:class:`HeightmapTerrain` with its
     :class:`HeightmapMapping`; ``IMAGE_RELIEF``, ``APRON_FADE``), :func:`ground_height`,
