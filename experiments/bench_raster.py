@@ -375,11 +375,12 @@ def main(argv=None) -> int:
     cols += [c for c in first if c.endswith("_ms") and c != "jaxgfx_ms"]
     cols += [c for c in ("jaxgfx/llvmpipe", "split/llvmpipe", "split_equal") if c in first]
     cols += [c for c in first if c.startswith("agree_")] + ["coverage"]
+    keys = list(dict.fromkeys(k for r in batch_rows for k in r))  # every row's, in order
     bcols = ["cameras", "output", "size", "devices"]
-    bcols += [c for c in batch_rows[0] if c.endswith("_fps")]
-    bcols += [c for c in ("vmap/loop", "sharded/loop", "sharded_devices") if c in batch_rows[0]]
+    bcols += [c for c in keys if c.endswith("_fps")]
+    bcols += [c for c in ("vmap/loop", "sharded/loop", "sharded_devices") if c in keys]
     bcols += ["vmap_cpu_ms", "loop_cpu_ms", "vmap_vs_loop_coverage"]
-    bcols += [c for c in batch_rows[0] if c.startswith("agree_")]
+    bcols += [c for c in keys if c.startswith("agree_")]
     skip_text = "".join(f"\n\nskipped peer {k}: {why}" for k, why in skipped.items())
     md = (
         ("## One frame (ms)\n\n" + markdown_table(frame_rows, cols) + "\n\n" if frame_rows else "")
