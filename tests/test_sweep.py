@@ -468,7 +468,7 @@ def _chunks(out):
 
 
 def test_two_processes_equal_one_and_resume_after_a_kill(tmp_path):
-    """Acceptance (issue 14): 2 processes joined by jax.distributed render the same files as a
+    """Acceptance: 2 processes joined by jax.distributed render the same files as a
     one-process sweep over 2 host devices; after one process is killed mid-sweep (SIGKILL) the
     other is stopped by the coordination service, and rerunning both completes the sweep."""
     ref = subprocess.run(
