@@ -314,7 +314,7 @@ def main(argv=None) -> int:
     quick = args.quick
     levels = args.levels or (2 if quick else 7)
     detail_n = 32 if quick else 128
-    sizes = (32, 48) if quick else (64, 96, 128, 160, 192)
+    sizes = (32,) if quick else (64, 96, 128, 160, 192)  # quick: one pipeline to compile
     if args.sizes:
         sizes = tuple(int(v) for v in args.sizes.split(","))
     steps = 6 if quick else 24
