@@ -11,14 +11,15 @@ work:
    ``split_equal``: bit-identical to one device) against open3d's ``RaycastingScene``
    (Embree, every core), Mesa llvmpipe (OpenGL through a moderngl EGL context, depth read
    back inside the timing) and trimesh's ray caster on embreex (one thread).
-2. Batches: the bunny at 512x384 from 1, 8, 32 and 128 orbit cameras, frames per second of
-   ``jax.jit(jax.vmap(rasterize))`` (which splits its frames over the process's host devices
-   by itself, ``vmap_devices``), a Python loop over the single-camera jit in the same process,
-   the sharded renderer (:func:`jaxgfx.sweep.sharded_renderer`; results come back as NumPy)
-   and the peers (open3d casts the whole batch in one call, llvmpipe draws and reads back one
-   frame after another); with the process CPU time per frame of the vmap and loop rows.
-   The process has one host device per core (``jax_num_cpu_devices``, set before JAX starts,
-   as the ``jaxgfx`` CLI does; the machine line names the devices).
+2. Batches: the bunny at 512x384 from 1, 8, 32 and 128 orbit cameras, depth only and
+   colour + depth, frames per second of a Python loop over the single-camera jit,
+   ``jax.jit(jax.vmap(rasterize))`` with the batch on one device (``vmap``) and with the batch
+   sharded over one host device per core (``vmap_sharded``: ``jax.device_put(cams,
+   NamedSharding(mesh, P("batch")))``, the documented way to use every core), and the peers
+   (open3d casts the whole batch in one call, llvmpipe draws and reads back one frame after
+   another); with the process CPU time per frame of the vmap and loop rows.  The process has
+   one host device per core (``jax_num_cpu_devices``, set before JAX starts; the machine
+   line names the devices).
 
 Timing: compile excluded; the methods are timed in interleaved rounds (each round runs every
 method once) and the best round is reported, so load from other processes hits all alike.
@@ -189,60 +190,79 @@ def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:
     return rows
 
 
-def batch_table(args, peers_for, single) -> list[dict]:
+def batch_table(args, peers_for) -> list[dict]:
+    from jax.sharding import NamedSharding
+    from jax.sharding import PartitionSpec as P
+
     from jaxgfx.camera import orbit_cameras
     from jaxgfx.raster import rasterize
-    from jaxgfx.sweep import sharded_renderer
 
     _, m = bunny(args.quick)
     v = np.asarray(m.vertices, np.float32)
     f = np.asarray(m.faces, np.int32)
+    nrm = np.asarray(m.vertex_normals, np.float32)
     c = 0.5 * (m.bounds[0] + m.bounds[1])
     r = 0.5 * float(np.linalg.norm(m.bounds[1] - m.bounds[0]))
     (w, h), batches = ((128, 96), (2,)) if args.quick else ((512, 384), BATCHES)
+    if args.batches:
+        batches = tuple(int(b) for b in args.batches.split(","))
     peers = [p for p in peers_for(v, f) if p.name != "trimesh+embree"]  # one thread: too slow
-
-    def one(cam):  # the sharded renderer's item function closes over the mesh
-        return rasterize(cam, v, f, v)
-
-    batched = jax.jit(jax.vmap(rasterize, in_axes=(0, None, None, None)))
+    kinds = {
+        "depth": lambda cam: rasterize(cam, v, f).depth,
+        "colour+depth": lambda cam: rasterize(cam, v, f, nrm)[:2],
+    }
+    if args.quick:  # the smoke test: one output kind compiles half as many programs
+        kinds.pop("colour+depth")
     ndev = len(jax.devices())
+    mesh = jax.make_mesh((ndev,), ("batch",))
     rows = []
     for b in batches:
         cams = orbit_cameras(c, 2.4 * r, b, 20.0, 50.0, w, h, 0.01 * r, 100 * r)
         each = [jax.tree_util.tree_map(lambda x, i=i: x[i], cams) for i in range(b)]
-        devs = max(d for d in range(1, ndev + 1) if b % d == 0)
-        sharded = sharded_renderer(one, jax.devices()[:devs])
-        methods = {
-            "vmap": lambda cams=cams: jax.block_until_ready(batched(cams, v, f, v)),
-            "loop": lambda each=each: jax.block_until_ready([single(c, v, f, v) for c in each]),
-            "sharded": lambda cams=cams, sharded=sharded: sharded(cams),
-        }
-        t0 = time.perf_counter()
-        for fn in methods.values():
-            fn()  # compile
-        compile_s = time.perf_counter() - t0
+        # The documented way to use every core: the batch sharded over one device per core.
+        spread = jax.device_put(cams, NamedSharding(mesh, P("batch"))) if b % ndev == 0 else None
+        peer_methods: dict = {}
         for p in peers:
             state = p.prepare(each)
-            methods[p.name] = lambda p=p, state=state: p.run(state)
+            peer_methods[p.name] = lambda p=p, state=state: p.run(state)
             p.run(state)
-        cpu: dict = {}
-        best, outs = best_rounds(methods, args.rounds, cpu)
-        depth = np.asarray(outs["vmap"].depth)
-        loop_depth = np.stack([np.asarray(o.depth) for o in outs["loop"]])
-        row = dict(cameras=b, size=f"{w}x{h}", devices=devs, compile_s=compile_s)
-        row["vmap_devices"] = len(outs["vmap"].depth.sharding.device_set)
-        for k, t in best.items():
-            row[f"{k}_fps"] = b / t
-        for k in ("vmap", "loop"):
-            row[f"{k}_cpu_ms"] = cpu[k] / b * 1e3  # process CPU time per frame
-        row["vmap/loop"] = best["loop"] / best["vmap"]
-        row["vmap_vs_loop_coverage"] = bool(
-            np.array_equal(np.isfinite(depth), np.isfinite(loop_depth))
-        )
-        for p in peers:
-            row[f"agree_{p.name}"] = f"{agreement(depth, outs[p.name]) * 100:.3f}%"
-        rows.append(row)
+        for kind, one in kinds.items():
+            single, batched = jax.jit(one), jax.jit(jax.vmap(one))
+            methods = {
+                "loop": lambda each=each, single=single: jax.block_until_ready(
+                    [single(cam) for cam in each]
+                ),
+                "vmap": lambda cams=cams, batched=batched: jax.block_until_ready(batched(cams)),
+            }
+            if spread is not None and ndev > 1:
+                methods["vmap_sharded"] = lambda spread=spread, batched=batched: (
+                    jax.block_until_ready(batched(spread))
+                )
+            t0 = time.perf_counter()
+            for fn in methods.values():
+                fn()  # compile
+            compile_s = time.perf_counter() - t0
+            cpu: dict = {}
+            best, outs = best_rounds({**methods, **peer_methods}, args.rounds, cpu)
+            depth = np.asarray(outs["vmap"] if kind == "depth" else outs["vmap"][1])
+            loop = [o if kind == "depth" else o[1] for o in outs["loop"]]
+            loop_depth = np.stack([np.asarray(o) for o in loop])
+            row = dict(cameras=b, output=kind, size=f"{w}x{h}", devices=ndev, compile_s=compile_s)
+            for k, t in best.items():
+                row[f"{k}_fps"] = b / t
+            for k in ("vmap", "loop"):
+                row[f"{k}_cpu_ms"] = cpu[k] / b * 1e3  # process CPU time per frame
+            row["vmap/loop"] = best["loop"] / best["vmap"]
+            if "vmap_sharded" in best:
+                row["sharded/loop"] = best["loop"] / best["vmap_sharded"]
+                sd = outs["vmap_sharded"] if kind == "depth" else outs["vmap_sharded"][1]
+                row["sharded_devices"] = len(sd.sharding.device_set)
+            row["vmap_vs_loop_coverage"] = bool(
+                np.array_equal(np.isfinite(depth), np.isfinite(loop_depth))
+            )
+            for p in peers:
+                row[f"agree_{p.name}"] = f"{agreement(depth, outs[p.name]) * 100:.3f}%"
+            rows.append(row)
     return rows
 
 
@@ -270,17 +290,22 @@ def figure(path: Path, frame_rows: list[dict], batch_rows: list[dict]) -> None:
     ax[0].set_ylabel("ms per frame (lower is better)")
     ax[0].set_title("one frame")
     ax[0].legend()
-    bs = [r["cameras"] for r in batch_rows]
-    for k in ["vmap", "loop", "sharded", "open3d", "llvmpipe"]:
-        ys = [r.get(f"{k}_fps", np.nan) for r in batch_rows]
+    depth_rows = [r for r in batch_rows if r["output"] == "depth"]
+    bs = [r["cameras"] for r in depth_rows]
+    names = {
+        "vmap": "jit(vmap(rasterize)), one device",
+        "vmap_sharded": "jit(vmap(rasterize)), batch sharded over every core",
+        "loop": "loop of jit(rasterize)",
+    }
+    for k in ["vmap", "vmap_sharded", "loop", "open3d", "llvmpipe"]:
+        ys = [r.get(f"{k}_fps", np.nan) for r in depth_rows]
         if not np.all(np.isnan(ys)):
-            name = {"vmap": "jit(vmap(rasterize))", "loop": "loop of jit(rasterize)"}.get(k, k)
-            ax[1].plot(bs, ys, "o-", label=name)
+            ax[1].plot(bs, ys, "o-", label=names.get(k, k))
     ax[1].set_xscale("log", base=2)
     ax[1].set_yscale("log")
     ax[1].set_xlabel("cameras per batch")
     ax[1].set_ylabel("frames / s (higher is better)")
-    ax[1].set_title(f"bunny {batch_rows[0]['size']}, batches")
+    ax[1].set_title(f"bunny {batch_rows[0]['size']}, batches, depth only")
     ax[1].legend()
     fig.suptitle(machine(), fontsize=8)
     fig.tight_layout()
@@ -307,6 +332,10 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--rounds", type=int, default=None, help="interleaved timing rounds (default 5; quick 2)"
     )
+    ap.add_argument(
+        "--batches", default=None, help="comma-separated camera counts (default 1,8,32,128)"
+    )
+    ap.add_argument("--no-frames", action="store_true", help="only the batch table")
     args = ap.parse_args(argv)
     # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
     import jaxgfx
@@ -332,8 +361,8 @@ def main(argv=None) -> int:
     split = None
     if ndev > 1 and not args.quick:
         split = jax.jit(functools.partial(rasterize, devices=ndev))
-    frame_rows = one_frame_table(args, peers_for, raster, split)
-    batch_rows = batch_table(args, peers_for, raster)
+    frame_rows = [] if args.no_frames else one_frame_table(args, peers_for, raster, split)
+    batch_rows = batch_table(args, peers_for)
     meta = dict(
         machine=machine(),
         command="python -m experiments.bench_raster" + (" --quick" if args.quick else ""),
@@ -344,18 +373,20 @@ def main(argv=None) -> int:
         f"hit within {RTOL:g} relative camera z",
     )
     cols = ["mesh", "triangles", "size", "compile_s", "jaxgfx_ms"]
-    cols += [c for c in frame_rows[0] if c.endswith("_ms") and c != "jaxgfx_ms"]
-    cols += [c for c in ("jaxgfx/llvmpipe", "split/llvmpipe", "split_equal") if c in frame_rows[0]]
-    cols += [c for c in frame_rows[0] if c.startswith("agree_")] + ["coverage"]
-    bcols = ["cameras", "size", "devices", "vmap_devices"]
-    bcols += [c for c in batch_rows[0] if c.endswith("_fps")]
-    bcols += ["vmap/loop", "vmap_cpu_ms", "loop_cpu_ms", "vmap_vs_loop_coverage"]
-    bcols += [c for c in batch_rows[0] if c.startswith("agree_")]
+    first = frame_rows[0] if frame_rows else {}
+    cols += [c for c in first if c.endswith("_ms") and c != "jaxgfx_ms"]
+    cols += [c for c in ("jaxgfx/llvmpipe", "split/llvmpipe", "split_equal") if c in first]
+    cols += [c for c in first if c.startswith("agree_")] + ["coverage"]
+    keys = list(dict.fromkeys(k for r in batch_rows for k in r))  # every row's, in order
+    bcols = ["cameras", "output", "size", "devices"]
+    bcols += [c for c in keys if c.endswith("_fps")]
+    bcols += [c for c in ("vmap/loop", "sharded/loop", "sharded_devices") if c in keys]
+    bcols += ["vmap_cpu_ms", "loop_cpu_ms", "vmap_vs_loop_coverage"]
+    bcols += [c for c in keys if c.startswith("agree_")]
     skip_text = "".join(f"\n\nskipped peer {k}: {why}" for k, why in skipped.items())
     md = (
-        "## One frame (ms)\n\n"
-        + markdown_table(frame_rows, cols)
-        + "\n\n## Batches (frames/s; agreement of the vmap frames)\n\n"
+        ("## One frame (ms)\n\n" + markdown_table(frame_rows, cols) + "\n\n" if frame_rows else "")
+        + "## Batches (frames/s; agreement of the vmap frames)\n\n"
         + markdown_table(batch_rows, bcols)
         + f"\n\nmachine: {meta['machine']}; {args.rounds} rounds\n\n{meta['note']}{skip_text}\n"
     )
@@ -367,7 +398,8 @@ def main(argv=None) -> int:
             md,
             dict(meta, rows=frame_rows, batch_rows=batch_rows),
         )
-        figure(Path(args.out) / "bench_raster.png", frame_rows, batch_rows)
+        if frame_rows:
+            figure(Path(args.out) / "bench_raster.png", frame_rows, batch_rows)
     return 0
 
 

@@ -8,7 +8,7 @@ differential sampling + faces + smoothing + normals: the <= 100 ms target at
 N = 128), the time to rebuild the level-0 box and the slowest level's box from
 scratch, render time for all levels, total polygons, memory of the state.
 
-Beside it (issue 17 item 6), on the detail size's boxes in the same run:
+Beside it, on the detail size's boxes in the same run:
 ``voxels_to_mesh`` against VTK FlyingEdges3D (one thread) and scikit-image marching
 cubes, triangles/s and vertex-distance agreement (peers from ``.[bench]``; a missing
 one is skipped with the reason printed).
@@ -23,6 +23,7 @@ Compile time is reported apart: the fly path runs twice and only the second run
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 
@@ -190,15 +191,32 @@ def _nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return cKDTree(b).query(a)[0]
 
 
-def meshing_peers(pipe, st, repeats: int = 5) -> list[dict]:
-    """voxels_to_mesh against VTK FlyingEdges3D and skimage marching cubes, per level box.
+DESIGNS = {
+    # the mesher's earlier designs, measured beside the current one (see _voxels_to_mesh)
+    "design_fused_search": dict(materialize=False, search=True),
+    "design_kept_search": dict(materialize=True, search=True),
+}
+CITED = (
+    "fast-surface-nets-rs: ~20 M triangles/s per core; block-mesh-rs `visible_block_faces`: "
+    "~40 M quads/s per core (their READMEs' numbers on their machines; no Python binding "
+    "on PyPI to measure here)"
+)
+
+
+def meshing_peers(pipe, st, repeats: int = 5, with_designs: bool = True) -> list[dict]:
+    """voxels_to_mesh (and its earlier designs) against VTK FlyingEdges3D and skimage
+    marching cubes, per level box.
 
     Same volume (the box's voxels, no seam ring) and the same run, alternating rounds,
-    best of ``repeats``.  Triangles/s is each mesher's own triangles over its time.
-    Agreement: distance from each peer vertex (shifted by half a voxel: a sample sits
-    at a cell centre) to the nearest voxel-mesh vertex, mean and 95th percentile, in
-    voxels: the iso-surface cuts the voxel faces' edges, so <= 0.71 is the same surface.
+    best of ``repeats``: wall ms and process CPU ms (the peers run one thread; CPU time
+    is the fairer one on a loaded machine).  Triangles/s is each mesher's own triangles
+    over its time.  Agreement: distance from each peer vertex (shifted by half a voxel:
+    a sample sits at a cell centre) to the nearest voxel-mesh vertex, mean and 95th
+    percentile, in voxels: the iso-surface cuts the voxel faces' edges, so <= 0.71 is
+    the same surface.
     """
+    from jaxgfx._src.terrain.meshing import _voxels_to_mesh
+
     peers = {}
     for name, (make, why) in (
         ("vtk_flying_edges", _vtk_flying_edges()),
@@ -208,6 +226,10 @@ def meshing_peers(pipe, st, repeats: int = 5) -> list[dict]:
             print(f"skip {name}: {why}")
         else:
             peers[name] = make
+    designs = {
+        k: jax.jit(functools.partial(_voxels_to_mesh, **kw), static_argnames=("max_quads", "seam"))
+        for k, kw in (DESIGNS.items() if with_designs else ())
+    }
     rows = []
     for lvl, box in enumerate(st.boxes):
         vox = np.asarray(box.voxels)
@@ -220,36 +242,60 @@ def meshing_peers(pipe, st, repeats: int = 5) -> list[dict]:
                 break
             cap *= 2
 
-        def ours(box=box, cap=cap):
-            return jax.block_until_ready(pipe.extract_fn(box, max_quads=cap, seam=False))
+        def ours(box=box, cap=cap, fn=pipe.extract_fn):
+            return jax.block_until_ready(fn(box, max_quads=cap, seam=False))
 
-        runs = {"voxels_to_mesh": ours, **{k: make(vox) for k, make in peers.items()}}
+        runs = {"voxels_to_mesh": ours}
+        for k, fn in designs.items():
+            runs[k] = functools.partial(ours, fn=fn)
+        runs.update({k: make(vox) for k, make in peers.items()})
         out = {k: r() for k, r in runs.items()}
-        ts: dict[str, list[float]] = {k: [] for k in runs}
+        ts: dict[str, list[tuple[float, float]]] = {k: [] for k in runs}
         for _ in range(repeats):
             for k, r in runs.items():
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 r()
-                ts[k].append(time.perf_counter() - t0)
+                ts[k].append((time.perf_counter() - t0, time.process_time() - c0))
         mesh = out["voxels_to_mesh"]
-        tris = {"voxels_to_mesh": int(np.asarray(mesh.face_valid).sum())}
+        tris = {k: int(np.asarray(mesh.face_valid).sum()) for k in ["voxels_to_mesh", *designs]}
+        for k in designs:  # the same mesh
+            nq = 2 * int(mesh.num_quads)
+            same = np.array_equal(np.asarray(out[k].faces)[:nq], np.asarray(mesh.faces)[:nq])
+            same &= np.array_equal(np.asarray(out[k].neighbors), np.asarray(mesh.neighbors))
+            if not same:
+                raise SystemExit(f"{k} made a different mesh at level {lvl}")
         lat = np.asarray(mesh.lattice)[: int(mesh.num_vertices)].astype(np.float64)
-        row = dict(level=lvl, quads=int(mesh.num_quads))
+        row = dict(level=lvl, quads=int(mesh.num_quads), capacity=cap)
         for k, t in ts.items():
-            if k != "voxels_to_mesh":
+            if k in peers:
                 pts, tris[k] = out[k]
                 d = _nearest(np.asarray(pts, np.float64) + 0.5, lat)
                 row[f"{k}_dist_mean"] = float(d.mean())
                 row[f"{k}_dist_p95"] = float(np.percentile(d, 95))
-            row[f"{k}_ms"] = 1e3 * min(t)
-            row[f"{k}_mtris_s"] = tris[k] / min(t) / 1e6
+            wall, cpu = min(a for a, _ in t), min(b for _, b in t)
+            row[f"{k}_ms"] = 1e3 * wall
+            row[f"{k}_cpu_ms"] = 1e3 * cpu
+            row[f"{k}_mtris_s"] = tris[k] / wall / 1e6
+            row[f"{k}_cpu_mtris_s"] = tris[k] / max(cpu, 1e-9) / 1e6
         for k in peers:
-            row[f"ratio_vs_{k}"] = row["voxels_to_mesh_mtris_s"] / row[f"{k}_mtris_s"]
+            for mine in ["voxels_to_mesh", *designs]:
+                for unit in ("", "cpu_"):
+                    row[f"{mine}_{unit}ratio_vs_{k}"] = (
+                        row[f"{mine}_{unit}mtris_s"] / row[f"{k}_{unit}mtris_s"]
+                    )
         rows.append(row)
         print(
             f"meshing level {lvl}: "
-            + ", ".join(f"{k} {row[k + '_ms']:.1f} ms {row[k + '_mtris_s']:.1f} Mt/s" for k in runs)
-            + "".join(f", x{k} {row['ratio_vs_' + k]:.2f}" for k in peers)
+            + ", ".join(
+                f"{k} {row[k + '_ms']:.1f} ms ({row[k + '_cpu_ms']:.1f} cpu) "
+                f"{row[k + '_mtris_s']:.1f} Mt/s"
+                for k in runs
+            )
+            + "".join(
+                f", x{k} {row['voxels_to_mesh_ratio_vs_' + k]:.2f} "
+                f"(cpu {row['voxels_to_mesh_cpu_ratio_vs_' + k]:.2f})"
+                for k in peers
+            )
         )
     return rows
 
@@ -261,11 +307,16 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--levels", type=int, default=None, help="nested Clip-Boxes (default 7; --quick 2)"
     )
+    ap.add_argument(
+        "--sizes", default=None, help="comma-separated N of the lower table (default 64,...,192)"
+    )
     args = ap.parse_args(argv)
     quick = args.quick
     levels = args.levels or (2 if quick else 7)
     detail_n = 32 if quick else 128
-    sizes = (32, 48) if quick else (64, 96, 128, 160, 192)
+    sizes = (32,) if quick else (64, 96, 128, 160, 192)  # quick: one pipeline to compile
+    if args.sizes:
+        sizes = tuple(int(v) for v in args.sizes.split(","))
     steps = 6 if quick else 24
     width, height = (160, 120) if quick else (640, 480)
     print("machine:", machine())
@@ -317,7 +368,7 @@ def main(argv=None) -> int:
             f"compile ~{row['compile_s']:.0f} s"
         )
         if n == detail_n:
-            peers = meshing_peers(pipe, st)
+            peers = meshing_peers(pipe, st, with_designs=not quick)
             key = jax.random.PRNGKey(1)
             subdiv = {lvl: subdivision_ms(pipe, st, lvl, key) for lvl in range(min(2, levels))}
             detail = dict(
@@ -390,15 +441,23 @@ def main(argv=None) -> int:
     ):
         md.append(f"| {label} | " + " | ".join(f"{r[key]:.2f}" for r in rows) + " |")
     if peers:
-        keys = [k[: -len("_ms")] for k in peers[0] if k.endswith("_ms")]
+        keys = [k[: -len("_cpu_ms")] for k in peers[0] if k.endswith("_cpu_ms")]
+        vtk = "vtk_flying_edges"
         md += [
             "",
             f"Voxels -> polygons on the same {detail['N']}^3 boxes (no seam ring), same run, "
-            "best of 5 alternating: ms, M triangles/s; peer vertices' distance to the "
-            "nearest voxel-mesh vertex (mean / p95, voxels)",
+            f"best of 5 alternating: wall ms / process CPU ms, M triangles/s (wall); the "
+            "ratios are voxels_to_mesh's triangles/s over VTK FlyingEdges3D's (one thread), "
+            "wall and CPU; peer vertices' distance to the nearest voxel-mesh vertex "
+            "(mean / p95, voxels). The design_* columns are earlier designs of the same "
+            "mesher (same mesh, checked): fused = packed sets left to XLA's fusion, "
+            "search = binary-search select.",
             "",
-            "| level | quads | " + " | ".join(keys) + " | agreement |",
-            "|---" * (len(keys) + 3) + "|",
+            "| level | quads (capacity) | "
+            + " | ".join(keys)
+            + (" | x VTK wall | x VTK cpu" if any(vtk in k for k in keys) else "")
+            + " | agreement |",
+            "|---" * (len(keys) + 3 + 2 * any(vtk in k for k in keys)) + "|",
         ]
         for r in peers:
             agree = "; ".join(
@@ -406,8 +465,20 @@ def main(argv=None) -> int:
                 for k in keys
                 if k + "_dist_mean" in r
             )
-            cells = " | ".join(f"{r[k + '_ms']:.1f} ms, {r[k + '_mtris_s']:.1f}" for k in keys)
-            md.append(f"| {r['level']} | {r['quads']} | {cells} | {agree} |")
+            cells = " | ".join(
+                f"{r[k + '_ms']:.1f} / {r[k + '_cpu_ms']:.1f} ms, {r[k + '_mtris_s']:.1f}"
+                for k in keys
+            )
+            ratio = ""
+            if f"voxels_to_mesh_ratio_vs_{vtk}" in r:
+                ratio = (
+                    f" | {r['voxels_to_mesh_ratio_vs_' + vtk]:.2f}"
+                    f" | {r['voxels_to_mesh_cpu_ratio_vs_' + vtk]:.2f}"
+                )
+            md.append(
+                f"| {r['level']} | {r['quads']} ({r['capacity']}) | {cells}{ratio} | {agree} |"
+            )
+        md += ["", f"Cited, not measured here: {CITED}."]
     text = "\n".join(md)
     print(text)
     if args.out:

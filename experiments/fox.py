@@ -37,12 +37,17 @@ CREDIT = (
 
 def render(vertices, normals, faces, cam, color):
     """Lambert-shaded image (H, W, 3) in [0, 1] on a white background."""
+    return np.asarray(_render(vertices, normals, faces, cam, jnp.asarray(color, jnp.float32)))
+
+
+@jax.jit
+def _render(vertices, normals, faces, cam, color):
     from jaxgfx.compose import lambert
     from jaxgfx.raster import rasterize
 
-    out = rasterize(cam, jnp.asarray(vertices), jnp.asarray(faces), jnp.asarray(normals))
-    shaded = lambert(out.color, jnp.broadcast_to(jnp.asarray(color, jnp.float32), out.color.shape))
-    return np.asarray(jnp.where((out.tri_id >= 0)[..., None], shaded, 1.0))
+    out = rasterize(cam, vertices, faces, normals)
+    shaded = lambert(out.color, jnp.broadcast_to(color, out.color.shape))
+    return jnp.where((out.tri_id >= 0)[..., None], shaded, 1.0)
 
 
 def main(argv=None) -> int:

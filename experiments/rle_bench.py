@@ -61,10 +61,16 @@ reference = jax.jit(RC.reference_render, static_argnames=("max_steps",))
 # reads its nearest ray-buffer texel, no per-pixel re-walk.
 THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0, planes_per_voxel=0.0)
 # Mip level 1 starts here (voxels), level l at LOD_DISTANCE * 2^(l-1): the band
-# length (the thesis's pd, 4.5.4.1) every instance number before session 17 used.
+# length (the thesis's pd, 4.5.4.1) of the instance table's first timing columns.
 # In the instance views its level-1 cells span ~8 output pixels (fat far trees); the
 # instance table also times RC.lod_distance_for's ~1-pixel bands (px_lod columns).
 LOD_DISTANCE = 96.0
+# The two traversals, timed beside the default in the same run: the wide one
+# with every plane in every step (the accelerator's form), and with 512 plane
+# slots of 16-column blocks (a done plane's slot takes the next plane: narrower
+# steps, more of them).
+WIDE = RC.RenderSettings(traversal="wide")
+WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
 
 
 def markdown(rows, headers) -> str:
@@ -80,8 +86,16 @@ def markdown(rows, headers) -> str:
 # ---------------------------------------------------------------------------
 
 
-def scene_list(quick: bool):
+def scene_list(quick: bool, only=None):
     """(name, voxels, mesh or None, note, prebuilt RLE or None) per available scene."""
+    out = _scene_list(quick)
+    if only:
+        # The instance rows use the tree (scene 1); keep it whatever is asked for.
+        out = [sc for i, sc in enumerate(out) if sc[0] in only or i == 1]
+    return out
+
+
+def _scene_list(quick: bool):
     import trimesh
 
     out = []
@@ -239,6 +253,9 @@ def agreement(out_depth, out_color, ref_depth, ref_color):
 def run(args):
     quick = args.quick
     sizes = [(128, 96)] if quick else [(512, 384), (1024, 768)]
+    if args.sizes:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
+    aa = args.aa
     base_limit = 256 * 192 if quick else 512 * 384
     n_cams = 2 if quick else 3
     # Every method gets the same repeats, so the ratios compare like with like.
@@ -246,7 +263,8 @@ def run(args):
     print(f"machine: {machine()}")
     rows, scale_rows, batch_rows = [], [], []
     figure = []  # (label, shaded frame) of the instance rows, camera 1
-    scenes = scene_list(quick)
+    only = set(args.scenes.split(",")) if args.scenes else None
+    scenes = scene_list(quick, only)
     has_mesh = any(mesh is not None for _, _, mesh, _, _ in scenes)
     splat_fn = make_splat_fn()
     mesh_fn = make_mesh_fn()
@@ -254,6 +272,8 @@ def run(args):
         # CI time (--quick under a minute): the instance rows time the tree;
         # the forest row runs only when no mesh from the data folder does.
         if quick and (name == "tree" or (name == "forest" and has_mesh)):
+            continue
+        if only and name not in only:
             continue
         rle_np = RC.encode_rle(vox, levels=1) if pre is None else pre
         st = RC.rle_stats(RC.encode_rle(vox, levels=4) if pre is None else pre)
@@ -265,16 +285,16 @@ def run(args):
             if w > 512 and name not in ("forest", "bunny", "untitled.vxl"):
                 continue  # keep the full run within the CPU budget
             # 2x1 AA: the same view on a 2W x H grid of half-width pixels.
-            cams = [supersampled(c, (2, 1)) for c in scene_cameras(vox.shape, w, h, n_cams)]
+            cams = [supersampled(c, (aa, 1)) for c in scene_cameras(vox.shape, w, h, n_cams)]
             f_ours = lambda c, r=rle: render(r, c)  # noqa: E731
             first, ours, out = timed(f_ours, cams, reps)
             stats = {k: int(v) for k, v in out.stats.items()}
-            aa, _ = post.antialias(out.color, out.depth, (2, 1))
-            assert aa.shape == (h, w, 3)
+            img, _ = post.antialias(out.color, out.depth, (aa, 1))
+            assert img.shape == (h, w, 3)
             row = dict(
                 scene=name,
                 note=note,
-                size=f"{w}x{h} (2x1 AA)",
+                size=f"{w}x{h}" + (f" ({aa}x1 AA)" if aa > 1 else ""),
                 voxels=st["voxels"],
                 bits_per_voxel=round(st["bits_per_voxel"], 2),
                 bytes_per_voxel=round(st["bytes_per_voxel_with_color"], 2),
@@ -285,7 +305,21 @@ def run(args):
                 ours_ms=round(1e3 * ours, 1),
                 ours_compile_s=round(first - ours, 1),
                 Melem_per_s=round(stats["elements_processed"] / ours / 1e6, 2),
+                iters=stats["loop_iterations"],
             )
+            # The traversals side by side (same cameras, same run): time, the
+            # dependent loop steps of a frame (traversal + warp + re-walk), and
+            # the share of pixels where their frames and the default's (on the
+            # CPU the one-cell walk) agree on hit / miss.  Quick: none (CI time;
+            # the tests render both traversals).
+            variants = () if quick else (("wide", WIDE), ("slots", WIDE_SLOTS))
+            for label, st in variants:
+                f_t = lambda c, r=rle, st=st: render(r, c, settings=st)  # noqa: E731
+                _, t_t, o_t = timed(f_t, cams, reps)
+                row[f"{label}_ms"] = round(1e3 * t_t, 1)
+                row[f"{label}_iters"] = int(o_t.stats["loop_iterations"])
+                same = np.isfinite(np.asarray(o_t.depth)) == np.isfinite(np.asarray(out.depth))
+                row[f"{label}_same_hits"] = round(100 * float(same.mean()), 2)
             if w * h <= base_limit:
                 if not quick:
                     f_th = lambda c, r=rle: render(r, c, settings=THESIS)  # noqa: E731
@@ -317,7 +351,7 @@ def run(args):
             rows.append(row)
         if name == "bunny" and not quick:  # quick: two more compiles (CI time)
             eight = scene_cameras(vox.shape, *sizes[0], 8)
-            for r in batched_cameras(rle, [supersampled(c, (2, 1)) for c in eight]):
+            for r in batched_cameras(rle, [supersampled(c, (aa, 1)) for c in eight]):
                 print(json.dumps(r))
                 batch_rows.append(r)
     # Scaling with instances (Fig. 4.23 / 4.30): ours vs splatting.  One
@@ -325,8 +359,8 @@ def run(args):
     # mean more trees behind the first; mip levels + LOD bands and the early
     # exit of the plane loop keep the traversal short.
     tree = scenes[1][1]
-    variants = [("trees", tree)]
-    if not quick:
+    variants = [] if args.no_instances else [("trees", tree)]
+    if not quick and variants:
         # The thesis's forests stand on terrain: the same tree on a one-voxel
         # ground slab filling its tile, so rows looking down between the
         # crowns end on the ground instead of crossing the whole map.
@@ -342,7 +376,7 @@ def run(args):
             pad = [-(-n // 32) * 32 for n in bunny.shape]
             padded = RC.Voxels(bunny.coords, bunny.colors, (pad[0], bunny.shape[1], pad[2]))
             variants.append((f"bunnies (R={max(bunny.shape)})", padded))
-    shown = variants[-1 if quick else 1][0]  # in the figure: the ground tiles
+    shown = variants[-1 if quick else 1][0] if variants else None  # the ground tiles
     for label, obj in variants:
         # The full mip chain, as in the thesis (4.4.7), as far as instances allow
         # (a tile's x / z size must stay divisible by 2 ** (levels - 1)).
@@ -353,7 +387,7 @@ def run(args):
         w, h = (128, 96) if quick else (512, 384)
         eye = np.array([-0.6 * tx, 1.1 * ty, -0.6 * tz])
         views = [look_at(eye, eye + [1.0, -0.35, d], 55, w, h, far=1e5) for d in (1.0, 0.7)]
-        cams = [supersampled(v, (2, 1)) for v in views]
+        cams = [supersampled(v, (aa, 1)) for v in views]
         # LOD_DISTANCE's mip cells span ~8 output pixels here; this one ~1 (738
         # voxels at 512x384): the picture a user wants, and its cost.
         px_lod = float(RC.lod_distance_for(views[0]))
@@ -380,7 +414,7 @@ def run(args):
             r["_first"] = time.perf_counter() - t0
             r["el_processed_M"] = round(int(out.stats["elements_processed"]) / 1e6, 3)
             # What the view shows, for the ratios below: a frame's cost follows its
-            # covered pixels and drawn elements (issue 15 item 3), and more instances
+            # covered pixels and drawn elements, and more instances
             # cover more of the screen as well as hide more behind the first.
             outs = [out] + [fn(cam) for cam in cams[1:]]
             r["el_rendered_M"] = round(int(out.stats["elements_rendered"]) / 1e6, 3)
@@ -399,28 +433,41 @@ def run(args):
             out_px = f_px(cams[0])  # the same program: lod_distance is traced
             r["px_lod"] = round(px_lod, 1)
             r["px_lod_el_processed_M"] = round(int(out_px.stats["elements_processed"]) / 1e6, 3)
-            built.append((r, (fn, f_px), f_sp, (out, out_px)))
+            r["_px_covered"] = float(np.isfinite(np.asarray(out_px.depth)).mean())
+            r["px_lod_iters"] = int(out_px.stats["loop_iterations"])
+            f_wpx = None
+            if not quick:  # the wide traversal at the same LOD (CI time: not in quick)
+                f_wpx = lambda cam, s=jscene, d=px_lod: render(
+                    s, cam, lod_distance=d, settings=WIDE
+                )  # noqa: E731
+                r["wide_px_lod_iters"] = int(f_wpx(cams[0]).stats["loop_iterations"])
+            built.append((r, (fn, f_px, f_wpx), f_sp, (out, out_px)))
         # Interleaved rounds: every instance count sees the same machine state,
         # so drift between sections does not skew the time / 1 instance ratios.
         t_ours = [[[] for _ in cams] for _ in built]
         t_px = [[[] for _ in cams] for _ in built]
+        t_wpx = [[[] for _ in cams] for _ in built]
         # Process CPU time too: XLA:CPU splits big fused ops over both cores
         # and its idle worker spins, so on this box CPU time runs up to 2x the
         # wall time, and load from other processes disturbs it less.
         c_ours = [[[] for _ in cams] for _ in built]
         t_splat = [[[] for _ in cams] for _ in built]
         for _ in range(2 if quick else 5):
-            for b, (_, (fn, f_px), f_sp, _) in enumerate(built):
+            for b, (_, (fn, f_px, f_wpx), f_sp, _) in enumerate(built):
                 for i, cam in enumerate(cams):
                     c0 = time.process_time()
                     t_ours[b][i].append(clock(fn, cam))
                     c_ours[b][i].append(time.process_time() - c0)
                     t_px[b][i].append(clock(f_px, cam))
+                    if f_wpx is not None:
+                        t_wpx[b][i].append(clock(f_wpx, cam))
                     if f_sp is not None:
                         t_splat[b][i].append(clock(f_sp, cam))
         # Ratios against the first row (one instance).
         base, base_cpu, base_px = steady(t_ours[0]), steady(c_ours[0]), steady(t_px[0])
         base_cov = built[0][0]["_covered"]
+        base_px_cov = built[0][0]["_px_covered"]
+        base_wpx = steady(t_wpx[0]) if t_wpx[0][0] else None
         hundred = next((steady(t) for t, x in zip(t_ours, built) if x[0]["instances"] == 100), None)
         for b, (r, _, f_sp, _) in enumerate(built):
             ours, cpu = steady(t_ours[b]), steady(c_ours[b])
@@ -441,6 +488,13 @@ def run(args):
             px = steady(t_px[b])
             r["px_lod_ms"] = round(1e3 * px, 1)
             r["px_lod/1 instance"] = round(px / base_px, 2)
+            # Per covered pixel: the time ratio over the covered-pixel ratio.
+            cov_ratio = r.pop("_px_covered") / base_px_cov
+            r["px_lod_per_pixel/1 instance"] = round(px / base_px / cov_ratio, 2)
+            if base_wpx is not None:
+                wpx = steady(t_wpx[b])
+                r["wide_px_lod_ms"] = round(1e3 * wpx, 1)
+                r["wide_px_lod_per_pixel/1 instance"] = round(wpx / base_wpx / cov_ratio, 2)
             print(json.dumps(r))
             scale_rows.append(r)
         # The figure: the forest as a user would show it, on its ground (quick: the
@@ -452,7 +506,7 @@ def run(args):
             frames.append((f"{r_last['instances']} {label}, LOD {LOD_DISTANCE:g}", coarse))
             for name, out in frames:
                 lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
-                img, _ = post.antialias(lit, out.depth, (2, 1))
+                img, _ = post.antialias(lit, out.depth, (aa, 1))
                 figure.append((name, np.asarray(img)))
     bits_rows = []
     if args.bits_res and (DATA / "meshes").is_dir():
@@ -488,6 +542,19 @@ def main(argv=None) -> int:
     ap.add_argument("--bits-res", type=int, default=None,
                     help="also voxelize bunny and dragon at this resolution for bits/voxel "
                     "(default: 1024, or off with --quick)")  # fmt: skip
+    ap.add_argument(
+        "--scenes",
+        default=None,
+        help="comma-separated scene names of the main table (default: all)",
+    )
+    ap.add_argument(
+        "--aa",
+        type=int,
+        default=2,
+        help="horizontal supersampling (1: one ray per pixel, as Embree's)",
+    )
+    ap.add_argument("--no-instances", action="store_true", help="skip the instance table")
+    ap.add_argument("--sizes", default=None, help="frame sizes, e.g. 512x384 (default: all)")
     args = ap.parse_args(argv)
     # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
     import jaxgfx
@@ -502,15 +569,20 @@ def main(argv=None) -> int:
     rows, batch, scale, bits, figure = run(args)
     h1 = ["scene", "note", "size", "voxels", "bits_per_voxel", "bytes_per_voxel", "el_total_M",
           "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
-          "Melem_per_s", "thesis_ms", "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
+          "Melem_per_s", "iters", "wide_ms", "wide_iters",
+          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "thesis_ms",
+          "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
           "mesh/ours", "embree_faces_ms", "ours/embree_faces", "embree_faces_agree",
           "embree_mesh_ms", "ours/embree_mesh", "embree_mesh_agree", "embree_mesh_dz"]  # fmt: skip
     h2 = ["way", "frames", "size", "ms_per_frame", "speedup_vs_loop", "median_speedup",
-          "bit_identical", "same_color", "max_depth_diff"]  # fmt: skip
+          "iters_per_batch", "bit_identical", "same_color", "max_depth_diff",
+          "same_hits"]  # fmt: skip
     h3 = ["scene", "instances", "map", "voxels", "ours_bytes", "splat_bytes", "ours_ms",
           "time/1 instance", "covered_pct", "covered/1 instance", "time/100 instances",
           "ours_cpu_ms", "cpu/1 instance", "ours_compile_s", "el_processed_M",
-          "el_rendered_M", "px_lod", "px_lod_ms", "px_lod/1 instance", "px_lod_el_processed_M",
+          "el_rendered_M", "px_lod", "px_lod_ms", "px_lod/1 instance",
+          "px_lod_per_pixel/1 instance", "px_lod_iters", "wide_px_lod_ms",
+          "wide_px_lod_per_pixel/1 instance", "wide_px_lod_iters", "px_lod_el_processed_M",
           "splat_ms", "splat/ours"]  # fmt: skip
     h4 = ["scene", "resolution", "shape", "voxels", "rle_elements_M", "bits_per_voxel",
           "bits_level0_only", "thesis_bits_per_voxel", "bytes_per_voxel_with_color",

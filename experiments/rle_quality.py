@@ -11,12 +11,12 @@ Every AA frame shows the same view: :func:`jaxgfx.camera.supersampled`
 renders it on pixels ``1 / fx`` by ``1 / fy`` as large (2x1: half as wide, as
 in the thesis), and :func:`jaxgfx.post.antialias` averages them back.
 
-A second table is the ray caster's acceptance at every distance (issue 15
-item 1): agreement with the per-pixel 3-D DDA (depth within one voxel, same
-colour, % of pixels either hits) for the bunny, the dragon (R = 256) and a
-384 x 256 x 384 crop of ``untitled.vxl``, at the five near cameras of
-``rle_bench`` (512 x 384) and three far ones (256 x 192, the distance set so
-that the object covers about 600 / 1,500 / 4,000 pixels).  ``--quick``: one
+A second table is the ray caster's acceptance at every distance: agreement
+with the per-pixel 3-D DDA (depth within one voxel, same colour, % of pixels
+either hits) for the bunny, the dragon (R = 256) and a 384 x 256 x 384 crop
+of ``untitled.vxl``, at the five near cameras of ``rle_bench`` (512 x 384) and
+three far ones (256 x 192, the distance set so that the object covers about
+600 / 1,500 / 4,000 pixels).  ``--quick``: one
 near and one far camera of the small scene at the quick frame size.
 
 Usage::
@@ -120,6 +120,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "narrow"),
+                    help="RenderSettings.traversal of the renders checked")  # fmt: skip
     args = ap.parse_args(argv)
     w, h = (96, 72) if args.quick else (256, 192)
     res = 48 if args.quick else 128
@@ -136,7 +138,8 @@ def main(argv=None) -> int:
     X, Y, Z = vox.shape
     c = np.array([X / 2, Y / 2, Z / 2])
     eye = c + np.array([0.55 * X, 0.2 * Y, 0.6 * Z])
-    render = jax.jit(RC.render_rle)
+    settings = RC.RenderSettings(traversal=args.traversal)
+    render = jax.jit(lambda r, c: RC.render_rle(r, c, settings=settings))
     shaded = jax.jit(
         lambda cam, col, dep: post.shade(
             col,

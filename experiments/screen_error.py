@@ -5,7 +5,7 @@ Clip-Boxes of resolution N and compared with the reference resolution; a pixel
 is an error when its grey value differs by more than 20 / 255 (thesis 3.5.4).
 The thesis reports 20.63 % (N = 64) down to 3.96 % (N = 160) against N = 192.
 
-The terrain is the St Helens DEM (issue 17's target: <= 4 % at N = 128), or the random
+The terrain is the St Helens DEM (target: <= 4 % at N = 128), or the random
 CSG landscape with ``--terrain csg`` (also when the data is absent).  Every N has the
 same number of levels, so a larger N reaches further; the camera's far plane is set
 inside the smallest N's outer box so that every render shows the same part of the

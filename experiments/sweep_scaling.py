@@ -1,15 +1,15 @@
 """Sweep scaling over host cores: one sharded batch of orbit frames on 1 core, then 2, ... cores.
 
-Issue 14 item 3 target: a batch sweep on 2 cores >= 1.7x one core.  "One core" is taken
+The target: a batch sweep on 2 cores >= 1.7x one core.  "One core" is taken
 literally: every thread of this process is pinned to one CPU (``sched_setaffinity``) for the
 baseline, because one JAX device is NOT one core on XLA:CPU: its thunk runtime splits large
 loop fusions over an intra-op thread pool with one thread per core, so a single device
-already keeps two cores busy much of the time (session 9: two or more runnable threads 63 %
-of the 1-device sweep's time, 94 % with 2 devices).  Each configuration renders the same
-batch (the bunny, or a torus without the data folder) in interleaved rounds, switching the
-process's affinity between rounds; host devices come from ``jax_num_cpu_devices`` (the
-in-process twin of ``XLA_FLAGS=--xla_force_host_platform_device_count``, set here before JAX
-starts) and :func:`jaxgfx.sweep.sharded_renderer` runs the shards side by side.
+already keeps two cores busy part of the time (the ``two_plus`` column shows how much).
+Each configuration renders the same batch (the bunny, or a torus without the data folder) in
+interleaved rounds, switching the process's affinity between rounds; host devices come from
+``jax_num_cpu_devices`` (the in-process twin of
+``XLA_FLAGS=--xla_force_host_platform_device_count``, set here before JAX starts) and
+:func:`jaxgfx.sweep.sharded_renderer` runs the shards side by side.
 
 The table gives the median seconds, frames/s, the speed-up over one core, the process's CPU
 time per wall second and the parallelism the program offers, sampled every millisecond from

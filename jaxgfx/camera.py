@@ -18,6 +18,7 @@ from jaxgfx._src.camera import camera_matrix as camera_matrix
 from jaxgfx._src.camera import camera_to_screen as camera_to_screen
 from jaxgfx._src.camera import focal_length as focal_length
 from jaxgfx._src.camera import focal_lengths as focal_lengths
+from jaxgfx._src.camera import frame_points as frame_points
 from jaxgfx._src.camera import look_at as look_at
 from jaxgfx._src.camera import orbit_cameras as orbit_cameras
 from jaxgfx._src.camera import pixel_rays as pixel_rays
@@ -49,4 +50,5 @@ __all__ = [
     "projection_matrix",
     "stack_cameras",
     "validate_camera",
+    "frame_points",
 ]

@@ -13,7 +13,8 @@ A reader's table of contents: thesis section -> function (implementation in
     :func:`otsu_threshold`; cubic voxels from the spacing, :func:`resample_isotropic`,
     :func:`isotropic_shape`) (``formats``, ``volume``); Voxlap's :func:`load_vxl` /
     :func:`load_kv6`; :func:`save_scene` / :func:`load_scene` (``formats``).
-4.3.3 Procedural trees: :func:`procedural_tree` (``tree``).
+4.3.3 Procedural trees:
+    :func:`procedural_tree` (``tree``).
 4.4.6 Pre-processing -- the RLE element ``skip << 6 | draw``: :data:`SKIP_BITS`,
     :data:`DRAW_BITS`, :data:`MAX_SKIP`, :data:`MAX_DRAW`, :func:`pack_element`,
     :func:`unpack_element` (``codec``); the pointer map and columns (Fig. 4.11):
@@ -26,14 +27,20 @@ A reader's table of contents: thesis section -> function (implementation in
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
     :func:`check_camera_outside`.
-4.5.1 Vanishing point: :func:`vanishing_point` (Eq. 4.2, 4.3).
-4.5.2 Concentric planes: :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
-4.5.3 Plane parameters: :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
-4.5.4-4.5.5 The per-plane traversal into ray-buffer lists (2-D DDA per plane, Eq. 4.5
-    projection, floating horizon and coverage culling) and the warp to the screen (Eq. 4.6)
-    are stages of :func:`render_rle`, importable from ``jaxgfx._src.voxel.traverse`` and
-    ``jaxgfx._src.voxel.warp``.
-4.5.6 Quality (smoothing, anti-aliasing, screen-space normals): :mod:`jaxgfx.post`.
+4.5.1 Vanishing point:
+    :func:`vanishing_point` (Eq. 4.2, 4.3).
+4.5.2 Concentric planes:
+    :func:`screen_segments`, :class:`Segments` (Eq. 4.4).
+4.5.3 Plane parameters:
+    :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
+4.5.4-4.5.5 Rasterizing and displaying the ray buffer:
+    the per-plane traversal into ray-buffer lists (2-D DDA per plane, Eq. 4.5 projection,
+    floating horizon and coverage culling) and the warp to the screen (Eq. 4.6) are stages
+    of :func:`render_rle`, importable from ``jaxgfx._src.voxel.traverse`` (one cell per
+    plane per loop step), ``jaxgfx._src.voxel.wide`` (a block of cells per plane per step:
+    tens of steps a frame) and ``jaxgfx._src.voxel.warp``.
+4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
+    :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
     (exact per-pixel 3-D DDA through the dense grid) (``reference``).
 

@@ -15,14 +15,17 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
 3.4.3 CSG terrain with spatial bins (Fig. 3.5; 50 000 operations in 3.5.2), ``csg.py``:
     :class:`CSGTerrain`, :func:`csg_terrain`, :func:`random_csg_terrain`,
     ``PRIMITIVE_SPHERE`` / ``PRIMITIVE_BOX`` / ``PRIMITIVE_CYLINDER``.
+3.5.2 Elevation files (GeoTIFF, SRTM .hgt, ESRI .asc, USGS .dem, images, arrays), ``elevation.py``:
+    :func:`read_heightmap` (:class:`HeightmapData`: heights, metres per sample along x
+    and z, height unit, CRS), :func:`load_heightmap`, :func:`metres_per_degree`.
 3.5.2 height maps (Fig. 3.16) and 3.3.1 existing volumes, ``heightmap.py``:
-    :func:`read_heightmap` (:class:`HeightmapData`: heights, spacing, unit),
-    :func:`load_heightmap`, :func:`heightmap_terrain` (:class:`HeightmapTerrain` with its
-    :class:`HeightmapMapping`), :func:`ground_height`, :func:`default_viewer`,
-    :func:`volume_terrain` (:class:`VolumeTerrain`).  A sample (r, c) with value v stands
-    at x = origin_x + (c + 0.5) cell, z = origin_z + (r + 0.5) cell,
-    y = base + (v - min_value) vertical_scale; heights are bilinear between samples and
-    voxel (x, y, z) is solid iff y + 0.5 < ground_height(x + 0.5, z + 0.5).
+    :func:`heightmap_terrain` (:class:`HeightmapTerrain` with its
+    :class:`HeightmapMapping`; ``IMAGE_RELIEF``, ``APRON_FADE``), :func:`ground_height`,
+    :func:`default_viewer`, :func:`volume_terrain` (:class:`VolumeTerrain`).  A sample
+    (r, c) with value v stands at x = origin_x + (c + 0.5) cell_x, z = origin_z +
+    (r + 0.5) cell_z, y = base + (v - min_value) vertical_scale; heights are bilinear
+    between samples, fade into a flat apron beyond the map, and voxel (x, y, z) is solid
+    iff y + 0.5 < ground_height(x + 0.5, z + 0.5).
 3.4.3 Validating and sampling any terrain, ``sampling.py``:
     :func:`as_terrain`, :func:`check_terrain`, :func:`check_viewer`, :func:`sample_terrain`.
 3.4.1-3.4.2 Clip-Box and 3.4.3 filling it, ``clipbox.py``:
@@ -71,6 +74,10 @@ from jaxgfx._src.terrain.display import level_views as level_views
 from jaxgfx._src.terrain.display import mesh_to_trimesh as mesh_to_trimesh
 from jaxgfx._src.terrain.display import render_levels as render_levels
 from jaxgfx._src.terrain.display import weld_mesh as weld_mesh
+from jaxgfx._src.terrain.elevation import HeightmapData as HeightmapData
+from jaxgfx._src.terrain.elevation import load_heightmap as load_heightmap
+from jaxgfx._src.terrain.elevation import metres_per_degree as metres_per_degree
+from jaxgfx._src.terrain.elevation import read_heightmap as read_heightmap
 from jaxgfx._src.terrain.functions import Difference as Difference
 from jaxgfx._src.terrain.functions import FunctionTerrain as FunctionTerrain
 from jaxgfx._src.terrain.functions import Intersection as Intersection
@@ -79,15 +86,14 @@ from jaxgfx._src.terrain.functions import SinTerrain as SinTerrain
 from jaxgfx._src.terrain.functions import Union as Union
 from jaxgfx._src.terrain.functions import XorTerrain as XorTerrain
 from jaxgfx._src.terrain.functions import int_sin as int_sin
-from jaxgfx._src.terrain.heightmap import HeightmapData as HeightmapData
+from jaxgfx._src.terrain.heightmap import APRON_FADE as APRON_FADE
+from jaxgfx._src.terrain.heightmap import IMAGE_RELIEF as IMAGE_RELIEF
 from jaxgfx._src.terrain.heightmap import HeightmapMapping as HeightmapMapping
 from jaxgfx._src.terrain.heightmap import HeightmapTerrain as HeightmapTerrain
 from jaxgfx._src.terrain.heightmap import VolumeTerrain as VolumeTerrain
 from jaxgfx._src.terrain.heightmap import default_viewer as default_viewer
 from jaxgfx._src.terrain.heightmap import ground_height as ground_height
 from jaxgfx._src.terrain.heightmap import heightmap_terrain as heightmap_terrain
-from jaxgfx._src.terrain.heightmap import load_heightmap as load_heightmap
-from jaxgfx._src.terrain.heightmap import read_heightmap as read_heightmap
 from jaxgfx._src.terrain.heightmap import volume_terrain as volume_terrain
 from jaxgfx._src.terrain.meshing import ClipBoxMesh as ClipBoxMesh
 from jaxgfx._src.terrain.meshing import seam_occupancy as seam_occupancy
@@ -135,7 +141,10 @@ __all__ = [
     "VolumeTerrain",
     "read_heightmap",
     "load_heightmap",
+    "metres_per_degree",
     "heightmap_terrain",
+    "IMAGE_RELIEF",
+    "APRON_FADE",
     "ground_height",
     "default_viewer",
     "volume_terrain",

@@ -1,4 +1,4 @@
-"""Shared fixtures: the data folder and jitted functions compiled once per session."""
+"""Shared fixtures: the data folder and jitted functions compiled once per test run."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ def cache_calls(tmp_path, monkeypatch):
     return calls
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def data_dir() -> Path:
     """``../shared/data`` beside the checkout; tests needing it skip when absent."""
     if not DATA.is_dir():
@@ -45,7 +45,7 @@ def data_dir() -> Path:
     return DATA
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def raster_jit():
     from jaxgfx.raster import rasterize
 

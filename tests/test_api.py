@@ -68,7 +68,8 @@ def test_every_module_is_short():
 
 CHAPTERS = {"terrain": "terrain", "raycast": "voxel", "skin": "skin"}
 # Layers of the private package, lowest first: a module imports only its own layer or lower.
-ENGINE = ("checks", "hostmem", "io", "report", "camera", "placement", "zbuffer", "frames")
+ENGINE = ("checks", "precision", "hostmem", "io", "report", "camera", "placement")
+ENGINE += ("zbuffer", "frames")
 ENGINE += ("zsplit", "raster", "silhouette", "compose", "post")
 TOP = ("scene", "showcase", "sweep")
 PUBLIC = tuple(p.stem for p in PKG.glob("*.py") if p.stem != "__init__") + ("cli",)

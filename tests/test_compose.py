@@ -85,3 +85,19 @@ def test_atomic_files_get_normal_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (p.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_fog_fades_into_the_sky_behind_each_pixel():
+    cam = camera_from_degrees([0, 0, 0], 0, 10, 0, 60, 6, 8)
+    sky = background(cam)
+    # every pixel hit by a grey object far away: it takes the sky's colour at that pixel
+    far = Frame(jnp.full((8, 6, 3), 0.5), jnp.full((8, 6), 1e4))
+    out = np.asarray(fog(far, sky.color, density=1.0).color)
+    np.testing.assert_allclose(out, np.asarray(sky.color), atol=1e-6)
+    assert np.ptp(out[:, 0, 2]) > 0.05  # the sky's gradient, not one flat fog colour
+    near = Frame(jnp.full((8, 6, 3), 0.5), jnp.full((8, 6), 1e-6))
+    np.testing.assert_allclose(np.asarray(fog(near, sky.color, density=1.0).color), 0.5, atol=1e-5)
+    with pytest.raises(ValueError, match="fog_color"):
+        fog(far, jnp.zeros((2, 2, 3)), density=1.0)
+    with pytest.raises(ValueError, match="density"):
+        fog(far, density=-1.0)

@@ -10,7 +10,8 @@ import pytest
 
 from jaxgfx import terrain as T
 from jaxgfx.cli import main
-from jaxgfx.cli.flythrough import MARGIN, default_path, path_frames
+from jaxgfx.cli.flythrough import MARGIN, default_path, fly, path_frames
+from jaxgfx.cli.terrain import make_terrain
 
 # the Clip-Box and image sizes of test_terrain.py's CLI tests: their compiles are shared
 TINY = ["--resolution", "16", "--levels", "2", "--size", "32x24", "--smoothing", "2"]
@@ -58,7 +59,9 @@ def test_cli_flythrough_heightmap_writes_film_and_tables(hill, tmp_path, capsys)
     _, path = hill
     out, still = tmp_path / "fly.gif", tmp_path / "still.png"
     fn = ["--function", f"heightmap:{path}", "--cell", "2", "--vertical-scale", "0.5"]
-    args = ["flythrough", *TINY, *fn, "--frames", "3", "--out", str(out), "--still", str(still)]
+    # No fog: at these tiny sizes fogged frames can be alike and the GIF merges them.
+    args = ["flythrough", *TINY, *fn, "--frames", "3", "--fog", "0", "--out", str(out)]
+    args += ["--still", str(still)]
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     film = iio.imread(out)
@@ -68,11 +71,32 @@ def test_cli_flythrough_heightmap_writes_film_and_tables(hill, tmp_path, capsys)
     table = json.loads((tmp_path / "fly.json").read_text())
     assert [r["frame"] for r in table["rows"]] == [0, 1, 2]
     for r in table["rows"]:
-        assert r["ms"] > 0 and r["triangles"] > 0 and r["boxes_updated"] >= 0
+        assert r["ms"] > 0 and r["triangles"] > 0
         assert r["reuse_pct"] is None or 0 <= r["reuse_pct"] <= 100
+    # Frame 0 stands where the worker built its boxes: nothing moves.  Each later frame is
+    # ~15 voxels on, past both levels' move thresholds (N / 8 of their own voxels: 2 and
+    # 4), and each frame waits for the worker: both boxes move, once.
+    assert [r["boxes_updated"] for r in table["rows"]] == [0, 2, 2]
+    assert summary["box_updates"] == 4
     md = (tmp_path / "fly.md").read_text()
     assert md.count("\n| ") == 4  # header + 3 frames
     assert summary["frames"] == 3 and summary["out"] == str(out)
+
+    # The same boxes (so the compiles above are reused) under a camera that stands still
+    # for a frame, jumps and stands still again: the jump updates every level once, and
+    # no still frame updates any or counts the jump's updates again.
+    t = make_terrain(f"heightmap:{path}", cell=2, vertical_scale=0.5)
+    pipe = T.ClipBoxPipeline(t, size=16, levels=2, smoothing=2)
+    wp, _ = default_path(t, "heightmap:hill.npy", 16)
+    p, q = path_frames(wp, 3)[0][[0, 2]]
+    frames, rows = fly(
+        pipe, np.stack([p, p, q, q]), np.zeros(4), -15.0, size=(32, 24), fov=60.0,
+        height_range=(0.0, 15.0), fog_distance=16.0, snow_line=None, wait=True,
+    )  # fmt: skip
+    assert [r["boxes_updated"] for r in rows] == [0, 0, 2, 0]
+    assert [r["generation"] for r in rows] == [0, 0, 1, 1]
+    assert np.array_equal(frames[0], frames[1]) and np.array_equal(frames[2], frames[3])
+    assert not np.array_equal(frames[1], frames[2])
 
 
 def test_cli_flythrough_errors(hill, tmp_path, capsys):

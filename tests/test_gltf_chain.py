@@ -24,7 +24,7 @@ def fox(data_dir):
 
 
 def _experiment_formula(gskin, t):
-    """experiments/fox.py before the library had it (session 7), written out independently."""
+    """The tail as one spline from the skinning primitives, not the library's chain code."""
     names = list(gskin.joint_names)
     tail = [names.index(n) for n in skin.TAIL_JOINTS]
     rest_globals = skin.joint_globals(gskin, gskin.rest_trs)

@@ -19,7 +19,7 @@ higher than this above the terrain surface under it, and its highest-standing on
 must be within this of the surface (not sunk)."""
 
 MIN_SHARE = {"terrain pass": 0.25, "static objects pass": 0.01, "character pass": 0.004}
-"""Share of the demo frame each pass must show after compositing (README states them)."""
+"""Share of the demo frame each pass must show after compositing."""
 
 
 def _surface(tfn, x, z, y_range):
@@ -54,6 +54,7 @@ def _check_placements(demo):
 def test_demo_objects_stand_on_procedural_ground(tmp_path):
     demo = build_demo(32, 24, key=jax.random.key(0), data=tmp_path)  # an empty folder: no data
     assert "procedural" in demo.description
+    assert demo.credits == ()  # nothing of the shared data was drawn: nothing to credit
     names = {p.name for p in demo.placements}
     assert {"tree", "character"} <= names
     _check_placements(demo)
@@ -62,6 +63,8 @@ def test_demo_objects_stand_on_procedural_ground(tmp_path):
 def test_demo_objects_stand_on_the_dem(data_dir):
     demo = build_demo(32, 24, key=jax.random.key(0), data=data_dir)
     assert "St Helens" in demo.description and "fox" in demo.description
+    assert len(demo.credits) == len(set(demo.credits)) == 3
+    assert {c.split(":")[0] for c in demo.credits} == {"St Helens DEM", "kv6 sprites", "Fox"}
     assert {"tree", "barrel", "caco", "character"} <= {p.name for p in demo.placements}
     _check_placements(demo)
 
@@ -89,3 +92,6 @@ def test_demo_cli_writes_images_gif_and_pass_shares(tmp_path, capsys):
         share = [v for k, v in timing["coverage"].items() if k.startswith(prefix)]
         assert len(share) == 1 and share[0] >= least, (prefix, timing["coverage"])
     assert "| stage |" in (out / "timing.md").read_text()
+    printed = capsys.readouterr().out
+    for credit in timing["credits"]:
+        assert printed.count(credit) == 1  # each credit once

@@ -662,6 +662,35 @@ def test_lbs_kernel_equals_per_vertex_reference(influences):
         np.testing.assert_allclose(bnrm[k], lnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
 
 
+def test_dqs_kernel_equals_per_vertex_reference():
+    # The structure-of-arrays DQS equals dqs_vertex vmapped over the vertices, with
+    # rotations far apart (quaternions in opposite hemispheres get flipped to the dominant
+    # influence's), and a batch of 11 poses (more than one chunk) equals a loop.
+    rng = np.random.default_rng(13)
+    axes = rng.normal(size=(6, 3)) * np.array([[2.5], [2.8], [0.3], [3.0], [1.0], [0.1]])
+    rot = jax.vmap(skin.axis_angle_to_matrix)(jnp.asarray(axes, jnp.float32))
+    transforms = jnp.concatenate([rot, jnp.asarray(rng.normal(size=(6, 3, 1)), jnp.float32)], -1)
+    dual = skin.dual_quaternions(transforms)
+    assert np.any(np.asarray(dual[:, :4] @ dual[:, :4].T) < 0)  # antipodal pairs present
+    joints, weights, v, n = _random_influences(rng, 53, 4, 6)
+    pos, nrm = jax.jit(skin.dual_quaternion_skinning)(transforms, v, n, joints, weights)
+    ref = jax.jit(jax.vmap(skin.dqs_vertex, in_axes=(None, 0, 0, 0, 0)))
+    rpos, rnrm = ref(dual, joints, weights, v, n)
+    np.testing.assert_allclose(pos, rpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+    np.testing.assert_allclose(nrm, rnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+    batch = (
+        jnp.stack([transforms] * 11)
+        .at[:, :, :, 3]
+        .multiply(jnp.linspace(0.5, 1.5, 11)[:, None, None])
+    )
+    bpos, _ = jax.jit(jax.vmap(skin.dual_quaternion_skinning, in_axes=(0, None, None, None, None)))(
+        batch, v, n, joints, weights
+    )
+    for k in (0, 8, 10):
+        lpos, _ = skin.dual_quaternion_skinning(batch[k], v, n, joints, weights)
+        np.testing.assert_allclose(bpos[k], lpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+
+
 def _raw_sampled_normals(table, coord, weights, normals):
     """NumPy: the blended normal of skin_vertex_sampled before normalizing, (V, 3)."""
     table = np.asarray(table, np.float64)

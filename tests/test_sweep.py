@@ -65,22 +65,56 @@ SHARDED = textwrap.dedent(
         float(np.abs(np.asarray(o) - np.asarray(r)).max())
         for k in range(6) for o, r in zip((sp[k], sn[k], cp[k], cn[k]), loop[k] * 2)
     )
-    # A user's jit(vmap(vmap(rasterize))) over posed meshes, no mesh set up: the 7 frames
-    # are split over the 4 devices (padded to 8) and equal the single-frame jit's.
+    # Computation follows data: a batch of 8 posed meshes that the user shards over the 4
+    # devices renders each device's frames there; inputs on device 1 stay on device 1; an
+    # unplaced batch stays on the default device; an export for CUDA needs one device.
+    from jax.sharding import NamedSharding, PartitionSpec as P
     from jaxgfx.raster import rasterize
     v, f, cam0 = mp.vertices, mp.faces, jax.tree_util.tree_map(lambda x: x[0], cams)
-    scale = np.linspace(0.8, 1.2, 7, dtype=np.float32)[:, None, None]
-    posed = (np.asarray(v) * scale).reshape(1, 7, -1, 3)
+    posed = np.asarray(v) * np.linspace(0.8, 1.2, 8, dtype=np.float32)[:, None, None]
     def ids_depth(vv):
         out = rasterize(cam0, vv, f, vv)
         return out.tri_id, jnp.where(out.tri_id >= 0, out.depth, 0.0)
-    nested = jax.jit(jax.vmap(jax.vmap(ids_depth)))(posed)
+    batched = jax.jit(jax.vmap(ids_depth))
+    mesh4 = jax.make_mesh((4,), ("batch",))
+    sharded = batched(jax.device_put(posed, NamedSharding(mesh4, P("batch"))))
+    plain = batched(posed)
+    on1 = batched(jax.device_put(posed, jax.devices()[1]))
     single = jax.jit(ids_depth)
-    loop = [single(posed[0, j]) for j in range(7)]
+    loop = [single(posed[j]) for j in range(8)]
     loop_ids, loop_depth = (np.stack([np.asarray(x[k]) for x in loop]) for k in (0, 1))
-    n_ids, n_depth = (np.asarray(x).reshape(loop_ids.shape) for x in nested)
-    vmap_ids_differ = int(np.sum(n_ids != loop_ids))
-    vmap_depth_diff = float(np.abs(n_depth - loop_depth).max())
+    s_ids, s_depth = (np.asarray(x) for x in sharded)
+    p_ids, p_depth = (np.asarray(x) for x in plain)
+    finite = np.where(p_depth > 0, p_depth, 1.0)
+    exported = jax.export.export(batched, platforms=["cuda"])(
+        jax.ShapeDtypeStruct(posed.shape, jnp.float32))
+    # Skinning follows the data too: one mesh split by vertices, a pose batch by poses.
+    from jaxgfx.sweep import shard_batch
+    t8 = rng.normal(size=(8, 5, 3, 4)).astype(np.float32)
+    mesh_parts = shard_batch((pv, pv, j, w))
+    one_mesh = skin.linear_blend_skinning(t[0], *mesh_parts)
+    poses = jax.jit(jax.vmap(skin.dual_quaternion_skinning, (0, None, None, None, None)))
+    rigid = np.concatenate([np.tile(np.eye(3, dtype=np.float32), (8, 5, 1, 1)), t8[..., 3:]], -1)
+    by_pose = poses(shard_batch(rigid), pv, pv, j, w)
+    lbs_one = skin.linear_blend_skinning(t[0], pv, pv, j, w)
+    pose_one = poses(rigid, pv, pv, j, w)
+    skin_split = dict(
+        mesh_devices=len(one_mesh[0].sharding.device_set),
+        mesh_diff=float(np.abs(np.asarray(one_mesh[0]) - np.asarray(lbs_one[0])).max()),
+        pose_devices=len(by_pose[0].sharding.device_set),
+        pose_diff=float(np.abs(np.asarray(by_pose[0]) - np.asarray(pose_one[0])).max()),
+    )
+    placement = dict(
+        sharded_devices=len(sharded[0].sharding.device_set),
+        sharded_ids_differ=int(np.sum(s_ids != p_ids)),
+        sharded_depth_rel=float(np.max(np.abs(s_depth - p_depth) / finite)),
+        plain_devices=sorted(d.id for d in plain[0].devices()),
+        on1_devices=sorted(d.id for d in on1[0].devices()),
+        loop_ids_differ=int(np.sum(p_ids != loop_ids)),
+        loop_depth_diff=float(np.abs(p_depth - loop_depth).max()),
+        export_devices=exported.nr_devices,
+        **skin_split,
+    )
     # rasterize(devices=3): one 24x24 frame's faces dealt over 3 devices (padded faces:
     # 256 % 3 != 0) and its rows shaded 8 per device is bit-identical to one device.
     v, f = m.vertices.astype(np.float32), m.faces.astype(np.int32)
@@ -104,9 +138,7 @@ SHARDED = textwrap.dedent(
         n=int(a["color"].shape[0]),
         lbs_shape=list(sp.shape), lbs_diff=lbs_diff,
         lbs_devices=len(lbs.mesh.devices.flat),
-        nested_devices=len(nested[0].sharding.device_set),
-        vmap_ids_differ=vmap_ids_differ, vmap_depth_diff=vmap_depth_diff,
-        split_equal=split_equal,
+        split_equal=split_equal, **placement,
     )))
     """
 )
@@ -142,22 +174,24 @@ def test_sharded_sweep_equals_unsharded(tmp_path):
     # sharded_vmap over 4 devices (batch 6, padded) equals a loop over the characters
     assert r["lbs_shape"] == [6, 40, 3] and r["lbs_devices"] == 4
     assert r["lbs_diff"] <= 1e-5
-    # jit(vmap(rasterize)) splits its frames over the 4 devices by itself.  Ids equal the
-    # single jit's except at exact depth ties: XLA compiles the setup for 4 partitions with
-    # other FMA contractions, so a tie can round the other way (the bunny at 512x384 on 2
-    # devices: 15 of 6.3 M pixels; sweeps alike).  Depth as in the sweep bound above.
-    assert r["nested_devices"] == 4
-    assert r["vmap_ids_differ"] <= 2  # of 7 x 24 x 16 pixels
-    assert r["vmap_depth_diff"] <= 1e-5
+    # A sharded batch runs on the 4 devices and equals the one-device batch; the batch on one
+    # device equals a loop over single frames (the same per-frame program).
+    assert r["sharded_devices"] == 4
+    assert r["sharded_ids_differ"] == 0 and r["sharded_depth_rel"] <= 1e-6
+    assert r["plain_devices"] == [0] and r["on1_devices"] == [1]
+    assert r["loop_ids_differ"] == 0 and r["loop_depth_diff"] <= 1e-5
+    assert r["export_devices"] == 1
+    assert r["mesh_devices"] == 4 and r["mesh_diff"] <= 1e-5
+    assert r["pose_devices"] == 4 and r["pose_diff"] <= 1e-5
 
 
 KILLED_CLI = textwrap.dedent(
     """
     import os, sys
-    import jaxgfx.sweep
+    import jaxgfx._src.sweep as sweep
     from jaxgfx.cli import main
 
-    kill_at, run, calls = int(sys.argv[1]), jaxgfx.sweep._run, []
+    kill_at, run, calls = int(sys.argv[1]), sweep._run, []
 
     def dying_run(*args):  # die like a killed process once `kill_at` chunks are done
         calls.append(1)
@@ -165,7 +199,7 @@ KILLED_CLI = textwrap.dedent(
             os.kill(os.getpid(), 9)
         return run(*args)
 
-    jaxgfx.sweep._run = dying_run
+    sweep._run = dying_run
     sys.exit(main(sys.argv[2:]))
     """
 )
@@ -360,12 +394,12 @@ MULTIPROCESS = textwrap.dedent(
         )
     import jax.numpy as jnp
     from jaxgfx.camera import orbit_cameras, pixel_rays
-    import jaxgfx.sweep
+    import jaxgfx._src.sweep as sweep
     from jaxgfx.sweep import run_sweep
 
     if kill_after > 0:  # die like a killed host after computing `kill_after` chunks: no clean-up
         import os
-        run, calls = jaxgfx.sweep._run, []
+        run, calls = sweep._run, []
 
         def dying_run(*args):
             out = run(*args)
@@ -374,7 +408,7 @@ MULTIPROCESS = textwrap.dedent(
                 os.kill(os.getpid(), 9)
             return out
 
-        jaxgfx.sweep._run = dying_run
+        sweep._run = dying_run
 
     assert jax.device_count() == 2, jax.devices()
     cams = orbit_cameras([0, 0, 0], 4.0, 5, width=24, height=16)
@@ -434,7 +468,7 @@ def _chunks(out):
 
 
 def test_two_processes_equal_one_and_resume_after_a_kill(tmp_path):
-    """Acceptance (issue 14): 2 processes joined by jax.distributed render the same files as a
+    """Acceptance: 2 processes joined by jax.distributed render the same files as a
     one-process sweep over 2 host devices; after one process is killed mid-sweep (SIGKILL) the
     other is stopped by the coordination service, and rerunning both completes the sweep."""
     ref = subprocess.run(

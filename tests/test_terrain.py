@@ -198,12 +198,21 @@ def test_csg_bad_input():
 # ---------------------------------------------------------------- height maps, volumes, combinators
 
 
-def heightfield_np(h, m, x, z):
-    """NumPy float64 reference of the bilinear surface H(x, z) (clamped or wrapped)."""
+def heightfield_np(h, m, x, z, apron=False):
+    """NumPy float64 reference of the bilinear surface H(x, z): wrapped, clamped, or with
+    ``apron`` the clamped edge fading to the apron's level (the module docstring's rule)."""
     rows, cols = h.shape
     rel = (np.asarray(h, np.float64) - h.min()) * m.vertical_scale
-    u = (np.asarray(x, np.float64) - m.origin[0]) / m.cell - 0.5
-    v = (np.asarray(z, np.float64) - m.origin[1]) / m.cell - 0.5
+    cx, cz = m.cells
+    u = (np.asarray(x, np.float64) - m.origin[0]) / cx - 0.5
+    v = (np.asarray(z, np.float64) - m.origin[1]) / cz - 0.5
+    if apron and not m.wrap:
+        ex = np.maximum(np.maximum(-0.5 - u, u - (cols - 0.5)), 0) * cx
+        ez = np.maximum(np.maximum(-0.5 - v, v - (rows - 0.5)), 0) * cz
+        t = np.clip(np.hypot(ex, ez) / m.apron_fade, 0, 1)
+        w = t * t * (3 - 2 * t)
+        inner = heightfield_np(h, m, x, z)
+        return inner * (1 - w) + (m.base + m.apron_height) * w
     u0, v0 = np.floor(u), np.floor(v)
     fu, fv = u - u0, v - v0
     c0, r0 = u0.astype(np.int64), v0.astype(np.int64)
@@ -234,7 +243,7 @@ def test_heightmap_terrain_matches_numpy(kw):
     origin, shape = (-14, -6, -9), (24, 20, 22)
     for level in (0, 1):
         g = grid_points(origin, shape, 1 << level)
-        surf = heightfield_np(h, m, g[..., 0] + 0.5, g[..., 2] + 0.5)
+        surf = heightfield_np(h, m, g[..., 0] + 0.5, g[..., 2] + 0.5, apron=True)
         want = g[..., 1] + 0.5 < surf
         got = sample(t, origin, shape, level)
         unsure = np.abs(g[..., 1] + 0.5 - surf) < HEIGHT_TOL
@@ -253,11 +262,10 @@ def test_heightmap_mapping_formulas_and_json():
     assert m.origin == (-6.0, -4.0) and m.shape == (2, 3) and m.min_value == 3.0
     assert not m.wrap and hash(m) == hash(dataclasses.replace(m))
     d = m.to_dict()
-    assert set(d) == {"origin", "cell", "vertical_scale", "base", "shape", "edge"}
-    assert (
-        d["edge"] == "clamp"
-        and T.heightmap_terrain(h, wrap=True).mapping.to_dict()["edge"] == "wrap"
-    )
+    keys = {"origin", "cell", "vertical_scale", "base", "shape", "edge", "apron", "crs"}
+    assert set(d) == keys | {"metres_per_sample", "metres_per_voxel"}
+    assert d["cell"] == [4.0, 4.0] and d["edge"] == "apron" and d["metres_per_voxel"] is None
+    assert T.heightmap_terrain(h, wrap=True).mapping.to_dict()["edge"] == "wrap"
     assert json.loads(json.dumps(d)) == d
     r, c = np.meshgrid(np.arange(2), np.arange(3), indexing="ij")
     pos = m.sample_position(r, c, h)
@@ -282,17 +290,21 @@ def test_heightmap_mapping_formulas_and_json():
         T.ground_height(T.SawTerrain(), 0.0, 0.0)
 
 
-def test_heightmap_edges_clamped_or_wrapped():
+def test_heightmap_edges_apron_or_wrapped():
     h = np.random.default_rng(4).random((3, 4)) * 8
-    clamp = T.heightmap_terrain(h, cell=2, vertical_scale=1.0)
+    clamp = T.heightmap_terrain(h, cell=2, vertical_scale=1.0, apron_fade=20.0)
     wrap = T.heightmap_terrain(h, cell=2, vertical_scale=1.0, wrap=True)
     m = clamp.mapping
     far = np.array([-40.0, -9.0, 30.0, 57.0])
     zc = np.full(4, m.origin[1] + 0.5 * m.cell)  # row 0's sample centres
-    # clamped: beyond the map the edge samples extend outwards
+    # apron: beyond the map the edge samples extend outwards, fading to the apron's level
     g = np.asarray(T.ground_height(clamp, far, zc))
-    np.testing.assert_allclose(g[[0, -1]], h[0, [0, -1]] - h.min(), atol=HEIGHT_TOL)
-    np.testing.assert_allclose(g, heightfield_np(h, m, far, zc), atol=HEIGHT_TOL)
+    np.testing.assert_allclose(g[[0, -1]], m.apron_height, atol=HEIGHT_TOL)
+    dist = np.maximum(np.maximum(m.origin[0] - far, far - (m.origin[0] + 8)), 0.0)
+    w = np.clip(dist / 20.0, 0, 1)
+    w = w * w * (3 - 2 * w)
+    want = heightfield_np(h, m, far, zc) * (1 - w) + m.apron_height * w
+    np.testing.assert_allclose(g, want, atol=HEIGHT_TOL)
     # wrapped: periodic with period (cols cell, rows cell), also exactly at 10^9
     period = (4 * 2, 3 * 2)
     gw = np.asarray(T.ground_height(wrap, far, zc))
@@ -364,8 +376,30 @@ def test_terrain_colors_by_slope_and_height():
         T.terrain_colors(v, n[:2], height_range=(0.0, 1.0))
 
 
+def test_terrain_colors_exact_far_from_the_origin():
+    # The detail field and strata come from the integer world position (whole cycles per
+    # DETAIL_PERIOD): vertices relative to an origin 10^9 away get the same colours, bit
+    # for bit, as the same vertices relative to the world origin.
+    rng = np.random.default_rng(8)
+    v = rng.uniform(-200, 200, (256, 3)).astype(np.float32)
+    n = rng.normal(size=(256, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    colors = jax.jit(T.terrain_colors, static_argnames=("height_range",))
+    kw = dict(height_range=(-50.0, 150.0))
+    near = np.asarray(colors(v, n, origin=jnp.asarray([120, 40, -7], jnp.int32), **kw))
+    far = np.asarray(
+        colors(v, n, origin=jnp.asarray([120 + 10**9, 40, -7 - 10**9], jnp.int32), **kw)
+    )
+    np.testing.assert_array_equal(near, far)
+    # the field does vary along x (not a constant), and world = origin + vertex
+    shifted = np.asarray(colors(v, n, origin=jnp.asarray([120 + 37, 40, -7], jnp.int32), **kw))
+    assert np.abs(shifted - near).max() > 0.01
+    world = np.asarray(colors(v + np.float32([120, 40, -7]), n, **kw))
+    np.testing.assert_allclose(world, near, atol=2e-3)
+
+
 def test_dem_fill_grows_known_samples_outwards():
-    from jaxgfx._src.terrain.heightmap import _fill_outside
+    from jaxgfx._src.terrain.elevation import _fill_outside
 
     nan = np.nan
     g = np.array([[nan, nan, 4.0], [nan, 2.0, 6.0], [nan, nan, nan]])
@@ -379,10 +413,11 @@ def test_dem_fill_grows_known_samples_outwards():
 @pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
 def test_st_helens_true_proportions():
     d = T.read_heightmap(os.path.join(DATA, "SainteHelens.dem"))
-    assert d.spacing == 30.0 and d.height_unit == 1.0 and d.heights.shape == (466, 327)
+    assert d.spacing == (30.0, 30.0) and d.height_unit == 1.0 and d.heights.shape == (466, 327)
     t = T.heightmap_terrain(os.path.join(DATA, "SainteHelens.dem"), cell=2)
     m = t.mapping
     assert m.vertical_scale == pytest.approx(2 / 30) and m.origin == (-327, -466)
+    assert m.to_dict()["metres_per_voxel"] == [15.0, 15.0, 15.0]
     # the summit stands (2543 - 682) / 30 * 2 voxels above the base, where the file puts it
     r, c = np.unravel_index(np.argmax(d.heights), d.heights.shape)
     x, y, z = m.sample_position(r, c, d.heights[r, c])
@@ -395,7 +430,8 @@ def test_st_helens_true_proportions():
     assert max(np.abs(np.diff(h, axis=0)).max(), np.abs(np.diff(h, axis=1)).max()) < 100
     img = T.read_heightmap(os.path.join(DATA, "gcanyon_elev_crop.bw.png"))
     assert img.spacing is None and img.height_unit is None
-    assert T.heightmap_terrain(img).mapping.vertical_scale == 1.0
+    relief = float(np.max(np.asarray(T.heightmap_terrain(img).heights)))
+    assert relief == pytest.approx(T.IMAGE_RELIEF * 1200, rel=1e-6)
 
 
 @pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
@@ -412,14 +448,251 @@ def test_real_heightmaps_load():
 def test_heightmap_bad_files(tmp_path):
     with pytest.raises(FileNotFoundError, match="heightmap path"):
         T.load_heightmap(tmp_path / "missing.png")
+    with pytest.raises(ValueError, match="is a directory"):
+        T.load_heightmap(tmp_path)
     bad = tmp_path / "not_an_image.png"
     bad.write_text("hello")
-    with pytest.raises(ValueError, match="heightmap"):
+    with pytest.raises(ValueError, match="not_an_image.png' is not a readable image"):
         T.load_heightmap(bad)
     dem = tmp_path / "broken.dem"
     dem.write_bytes(b"x" * 1100)
     with pytest.raises(ValueError, match="DEM"):
         T.load_heightmap(dem)
+    hgt = tmp_path / "N10E010.hgt"
+    hgt.write_bytes(b"\0" * 7)
+    with pytest.raises(ValueError, match="2 n\\^2"):
+        T.load_heightmap(hgt)
+    unnamed = tmp_path / "tile.hgt"
+    unnamed.write_bytes(b"\0" * 8)
+    with pytest.raises(ValueError, match="N46W123.hgt"):
+        T.load_heightmap(unnamed)
+    asc = tmp_path / "short.asc"
+    asc.write_text("ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 10\n1 2 3 4\n")
+    with pytest.raises(ValueError, match="needs 6 values, found 4"):
+        T.load_heightmap(asc)
+    rotated = tmp_path / "rotated.tif"
+    _write_geotiff(rotated, np.zeros((4, 5), np.float32), geographic=False, rotate=True)
+    with pytest.raises(ValueError, match="rotated"):
+        T.load_heightmap(rotated)
+    cm = tmp_path / "odd_unit.tif"
+    _write_geotiff(cm, np.zeros((4, 5), np.float32), geographic=False, linear_unit=9033)
+    with pytest.raises(ValueError, match="linear unit 9033"):
+        T.load_heightmap(cm)
+
+
+# ---------------------------------------------------------------- elevation files (GeoTIFF, ...)
+
+
+def _ecef(lat_deg, lon_deg):
+    """WGS 84 geodetic -> Earth-centred Cartesian metres (the test's own truth)."""
+    a, e2 = 6378137.0, 6.69437999014e-3
+    lat, lon = np.radians(lat_deg), np.radians(lon_deg)
+    n = a / np.sqrt(1 - e2 * np.sin(lat) ** 2)
+    return np.array(
+        [n * np.cos(lat) * np.cos(lon), n * np.cos(lat) * np.sin(lon), n * (1 - e2) * np.sin(lat)]
+    )
+
+
+def _ground_spacing(lat, lon, dlon, dlat):
+    """(east-west, north-south) metres between neighbouring samples at (lat, lon): the
+    straight-line distance between their Earth-centred positions."""
+    p = _ecef(lat, lon)
+    return (
+        float(np.linalg.norm(_ecef(lat, lon + dlon) - p)),
+        float(np.linalg.norm(_ecef(lat + dlat, lon) - p)),
+    )
+
+
+def _write_geotiff(
+    path,
+    arr,
+    *,
+    geographic,
+    scale=(1 / 1200, 1 / 1200),
+    tie=(-122.5, 46.5),
+    epsg=None,
+    nodata=None,
+    linear_unit=None,
+    rotate=False,
+):
+    """A GeoTIFF written with tifffile: pixel scale, tie point, GeoKeys, GDAL_NODATA."""
+    import tifffile
+
+    keys = [(1024, 0, 1, 2 if geographic else 1), (1025, 0, 1, 1)]
+    if geographic:
+        keys.append((2048, 0, 1, epsg or 4326))
+    else:
+        keys.append((3072, 0, 1, epsg or 32610))
+        if linear_unit is not None:
+            keys.append((3076, 0, 1, linear_unit))
+    directory = [1, 1, 0, len(keys)] + [v for k in keys for v in k]
+    tags = [(34735, "H", len(directory), directory, False)]
+    if rotate:
+        m = [0.8 * scale[0], 0.6, 0, tie[0], 0.6, -0.8 * scale[1], 0, tie[1]]
+        tags.append((34264, "d", 16, m + [0, 0, 0, 0, 0, 0, 0, 1], False))
+    else:
+        tags.append((33550, "d", 3, (scale[0], scale[1], 0.0), False))
+        tags.append((33922, "d", 6, (0.0, 0.0, 0.0, tie[0], tie[1], 0.0), False))
+    if nodata is not None:
+        tags.append((42113, "s", 0, str(nodata), False))
+    tifffile.imwrite(path, arr, extratags=tags, compression="zlib")
+
+
+def _hills(rows, cols, lo, hi, seed=0):
+    """A smooth field of a few Gaussian hills between ``lo`` and ``hi``."""
+    rng = np.random.default_rng(seed)
+    z, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    h = np.zeros((rows, cols))
+    for _ in range(4):
+        cz, cx, r = rng.uniform(0, rows), rng.uniform(0, cols), rng.uniform(3, 8)
+        h += rng.uniform(0.3, 1.0) * np.exp(-((x - cx) ** 2 + (z - cz) ** 2) / (2 * r * r))
+    return lo + (hi - lo) * (h - h.min()) / np.ptp(h)
+
+
+def _check_true_proportions(t, spacing_truth):
+    """metres_per_sample within 1 % of the truth, metres_per_voxel equal on x, y, z."""
+    d = t.mapping.to_dict()
+    np.testing.assert_allclose(d["metres_per_sample"], spacing_truth, rtol=0.01)
+    mpv = np.asarray(d["metres_per_voxel"])
+    np.testing.assert_allclose(mpv, mpv[0], rtol=0.01)
+    # the surface stands where the mapping says: sample (r, c) at its world position
+    m = t.mapping
+    r, c = np.meshgrid(np.arange(m.shape[0]), np.arange(m.shape[1]), indexing="ij")
+    return m, r, c
+
+
+def test_geotiff_geographic_srtm_style(tmp_path):
+    # 3 arc-second int16 metres at 46.5 N (St Helens' latitude), with voids
+    h = np.round(_hills(24, 20, 700, 2500)).astype(np.int16)
+    h[5, 6] = h[0, 0] = -32768
+    path = tmp_path / "srtm_like.tif"
+    _write_geotiff(path, h, geographic=True, nodata=-32768)
+    d = T.read_heightmap(path)
+    assert d.crs == "EPSG:4326" and d.filled == 2 and d.height_unit == 1.0
+    assert d.heights.min() >= 700 and d.heights[5, 6] > 700  # filled from its neighbours
+    lat = 46.5 - 12 / 1200  # the map's centre latitude
+    truth = _ground_spacing(lat, -122.5, 1 / 1200, 1 / 1200)
+    assert truth[0] < 0.7 * truth[1]  # a degree of longitude is shorter up north
+    t = T.heightmap_terrain(d)
+    m, r, c = _check_true_proportions(t, truth)
+    assert m.cells[1] == pytest.approx(truth[1] / truth[0], rel=0.01)
+    pos = m.sample_position(r, c, d.heights)
+    g = np.asarray(T.ground_height(t, pos[..., 0], pos[..., 2]))
+    np.testing.assert_allclose(g, pos[..., 1], atol=HEIGHT_TOL)
+    # the relief in voxels is the relief in metres over metres per voxel
+    mpv = m.metres_per_voxel
+    assert float(np.max(np.asarray(t.heights))) == pytest.approx(np.ptp(d.heights) / mpv[1])
+
+
+def test_geotiff_projected_utm_and_feet(tmp_path):
+    h = _hills(20, 24, -4200.0, -1500.0, seed=1).astype(np.float32)  # sea floor
+    path = tmp_path / "utm.tif"
+    _write_geotiff(path, h, geographic=False, scale=(30.0, 30.0), tie=(560000.0, 5120000.0))
+    d = T.read_heightmap(path)
+    assert d.crs == "EPSG:32610" and d.spacing == (30.0, 30.0)
+    t = T.heightmap_terrain(d, cell=2)
+    _check_true_proportions(t, (30.0, 30.0))
+    assert t.mapping.to_dict()["metres_per_voxel"] == [15.0, 15.0, 15.0]
+    assert float(np.max(np.asarray(t.heights))) == pytest.approx(np.ptp(h) / 15.0, rel=1e-5)
+    feet = tmp_path / "feet.tif"
+    _write_geotiff(feet, h, geographic=False, scale=(100.0, 100.0), epsg=2927, linear_unit=9003)
+    d = T.read_heightmap(feet)
+    np.testing.assert_allclose(d.spacing, 100 * 1200 / 3937, rtol=1e-12)  # US survey feet
+    plain = tmp_path / "plain.tif"
+    import tifffile
+
+    tifffile.imwrite(plain, h)  # no GeoTIFF tags: an image without units
+    assert T.read_heightmap(plain).spacing is None
+
+
+def test_srtm_hgt_tile(tmp_path):
+    n = 121  # 30 arc-seconds over one degree, edges shared with the neighbours
+    h = np.round(_hills(n, n, 100, 1900, seed=2)).astype(">i2")
+    h[60, 60] = -32768
+    path = tmp_path / "S34E151.hgt"
+    h.tofile(path)
+    d = T.read_heightmap(path)
+    assert d.filled == 1 and d.heights.shape == (n, n) and d.heights[60, 60] > 0
+    truth = _ground_spacing(-33.5, 151.5, 1 / 120, 1 / 120)
+    _check_true_proportions(T.heightmap_terrain(d), truth)
+
+
+def test_esri_ascii_grid(tmp_path):
+    h = _hills(20, 24, 300.0, 1300.0, seed=3)
+    h[3, 4] = -9999
+    rows = "\n".join(" ".join(f"{v:.2f}" for v in row) for row in h)
+    head = "ncols 24\nnrows 20\nxllcorner 500000\nyllcorner 4000000\ncellsize 25\n"
+    path = tmp_path / "grid.asc"
+    path.write_text(head + "NODATA_value -9999\n" + rows + "\n")
+    d = T.read_heightmap(path)
+    assert d.filled == 1 and d.spacing == (25.0, 25.0) and d.heights[3, 4] > 290
+    _check_true_proportions(T.heightmap_terrain(d), (25.0, 25.0))
+    # a .prj beside it says feet; a geographic grid without one is recognised by its numbers
+    path.with_suffix(".prj").write_text(
+        'PROJCS["NAD83 / x (ftUS)",GEOGCS["NAD83",UNIT["degree",0.0174532925199433]],'
+        'UNIT["US survey foot",0.304800609601219]]'
+    )
+    np.testing.assert_allclose(T.read_heightmap(path).spacing, 25 * 0.304800609601219)
+    geo = tmp_path / "geo.asc"
+    geo.write_text(
+        "ncols 24\nnrows 20\nxllcenter -112.1\nyllcenter 36.1\ncellsize 0.000833333333\n"
+        + rows
+        + "\n"
+    )
+    d = T.read_heightmap(geo)
+    assert d.crs == "geographic (assumed)"
+    truth = _ground_spacing(36.1 + 10 / 1200, -112.1, 1 / 1200, 1 / 1200)
+    np.testing.assert_allclose(d.spacing, truth, rtol=0.01)
+
+
+def test_unitless_relief_whatever_the_bit_depth(tmp_path):
+    import imageio.v3 as iio
+
+    from jaxgfx.cli.terrain import IMAGE_RELIEF_TEXT
+
+    num, den = IMAGE_RELIEF_TEXT.split("/")
+    assert int(num) / int(den) == T.IMAGE_RELIEF  # what --help says is what it does
+
+    h = _hills(30, 40, 0.0, 1.0, seed=4)
+    p8, p16 = tmp_path / "h8.png", tmp_path / "h16.png"
+    iio.imwrite(p8, np.round(h * 255).astype(np.uint8))
+    iio.imwrite(p16, np.round(h * 65535).astype(np.uint16))
+    for p in (p8, p16, tmp_path / "h.npy"):
+        if p.suffix == ".npy":
+            np.save(p, h * 1e4)
+        t = T.heightmap_terrain(T.read_heightmap(p))
+        relief = float(np.max(np.asarray(t.heights)))
+        # 1/8 of the longer side, never taller than the map is wide
+        assert relief == pytest.approx(T.IMAGE_RELIEF * 40, rel=1e-5) and relief <= 30
+        d = t.mapping.to_dict()
+        assert d["metres_per_sample"] is None and d["metres_per_voxel"] is None
+
+
+def test_apron_beyond_the_map_is_flat():
+    h = np.random.default_rng(7).random((6, 8)) * 10
+    t = T.heightmap_terrain(h, cell=2, vertical_scale=1.0)
+    m = t.mapping
+    border = np.concatenate([h[0], h[-1], h[:, 0], h[:, -1]]) - h.min()
+    assert m.apron_height == pytest.approx(np.median(border), abs=1e-5)
+    assert m.apron_fade == pytest.approx(max(T.APRON_FADE * 16, 2 * 2))
+    # far beyond each edge and corner: the flat apron, also at 10^9
+    far = np.array([-1e3, 1e3, 0.0, 0.0, -1e3, 1e3])
+    farz = np.array([0.0, 0.0, -1e3, 1e3, -1e3, 1e3])
+    g = np.asarray(T.ground_height(t, far, farz))
+    np.testing.assert_allclose(g, m.base + m.apron_height, atol=HEIGHT_TOL)
+    a = sample(t, (10**9, -2, 10**9), (4, 14, 4))
+    col = np.arange(-2, 12) + 0.5 < m.base + m.apron_height
+    assert (a == col[None, :, None]).all()
+    # on the map and within half a cell of its edge the map itself: the apron starts there
+    xs = m.origin[0] + np.array([0.0, 1.0, 16.0])
+    g = np.asarray(T.ground_height(t, xs, np.full(3, m.origin[1] + 5.0)))
+    np.testing.assert_allclose(
+        g, heightfield_np(h, m, xs, np.full(3, m.origin[1] + 5.0)), atol=1e-3
+    )
+    # and it fades monotonically from the edge value to the apron over apron_fade
+    xs = m.origin[0] + 16 + np.linspace(0, m.apron_fade, 20)
+    g = np.asarray(T.ground_height(t, xs, np.full(20, 1.0)))
+    assert np.all(np.diff(g) * np.sign(g[-1] - g[0]) >= -1e-5)
 
 
 def test_volume_terrain_placed_and_tiled():
@@ -609,7 +882,7 @@ def quads_reference(occ: np.ndarray, seam: bool) -> set:
 
 
 def test_mesh_matches_numpy_reference():
-    # Issue 17 item 6: the word-parallel mesher gives exactly the reference quads (as
+    # The word-parallel mesher gives exactly the reference quads (as
     # lattice triangles), each vertex once, and vertex_id inverts the lattice.
     rng = np.random.default_rng(5)
     vox = np.zeros((N, N, N), bool)
@@ -793,13 +1066,13 @@ SNAP_TOL = 0.02
 @pytest.mark.parametrize("viewer", [(5, 2, 7), (40, -3, 21)])
 @pytest.mark.parametrize("snap", [False, True])
 def test_levels_lie_on_the_same_surface(viewer, snap):
-    # Issue 17 item 2: every level, its seam ring included, is an unbiased estimate of
+    # Every level, its seam ring included, is an unbiased estimate of
     # the same surface.  A level-l voxel drawn as [p, p + 2^l] stood (2^l - 1) / 2 too
     # high on average, and the ring (the outer level's samples) smoothed at the inner
     # level's strength stood up to an outer voxel above both neighbours: flat-topped
     # slabs along every box border.  With snap (the default for height maps) every
     # vertex but the seam ring's lies on the surface itself.
-    t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
+    t = T.heightmap_terrain(SMOOTH_MAP, vertical_scale=1.0, base=-12, origin=(0, 0), wrap=True)
     pipe = pipeline_on(t)
     pipe.snap = snap
     st = pipe.init(np.array(viewer))
@@ -842,7 +1115,7 @@ def test_snap_to_surface_is_exact_far_away():
 
 def _seam_pair():
     """Smoothed level-0 and level-1 meshes of a small height map, the level-0 one with a seam."""
-    t = T.heightmap_terrain(SMOOTH_MAP, base=-12, origin=(0, 0), wrap=True)
+    t = T.heightmap_terrain(SMOOTH_MAP, vertical_scale=1.0, base=-12, origin=(0, 0), wrap=True)
     viewer = np.array([5, 2, 7])
     b0, b1 = (
         clipbox_jit(t, jnp.asarray(T.clipbox_origin(viewer, lvl, N), jnp.int32), lvl, size=N)
@@ -890,7 +1163,7 @@ def test_blend_compact_rows_equal_every_row(monkeypatch):
 
 @pytest.mark.parametrize("name", ["saw", "csg"])
 def test_exported_mesh_is_one_surface(name):
-    # Issue 17 item 5: the levels welded into one surface -- no duplicate vertices,
+    # The levels welded into one surface -- no duplicate vertices,
     # no edge in more than two triangles, open edges only on the outermost rim.
     viewer = np.array([5, 3, 7])
     st = pipeline_on(TERRAINS[name]).init(viewer)
@@ -922,7 +1195,7 @@ def test_exported_snapped_heightmap_is_one_surface():
     # faces around an edge where voxels touch are paired by the voxel lattice instead
     # (paired by the snapped positions, this map left 19 edges in four triangles).
     h = np.random.default_rng(2).uniform(0, 14, (32, 32))
-    t = T.heightmap_terrain(h, base=-8, origin=(0, 0), wrap=True)
+    t = T.heightmap_terrain(h, vertical_scale=1.0, base=-8, origin=(0, 0), wrap=True)
     viewer = np.array([5, 3, 7])
     views = T.level_views(pipeline_on(t).init(viewer))
 
@@ -1019,6 +1292,16 @@ def test_cli_terrain_errors(tmp_path, capsys):
     missing = "heightmap:" + str(tmp_path / "missing.dem")
     assert _terrain_cli(tmp_path, "--function", missing) == 2
     assert "heightmap path" in capsys.readouterr().err
+    # a directory, and a text file named .png: one line naming the file and the cause
+    assert _terrain_cli(tmp_path, "--function", f"heightmap:{tmp_path}") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{str(tmp_path)!r} is a directory" in err
+    fake = tmp_path / "notes.png"
+    fake.write_text("not a picture\n")
+    assert _terrain_cli(tmp_path, "--function", f"heightmap:{fake}") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{str(fake)!r} is not a readable image" in err
+    assert "pip" not in err
     assert _terrain_cli(tmp_path, "--resolution", "15") == 2
     assert "--resolution" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--levels", "0") == 2
@@ -1067,6 +1350,24 @@ def test_cli_terrain_heightmap_renders_prints_its_mapping_and_exports(hill, tmp_
     cap = capsys.readouterr()
     assert "warning: --viewer (0, 0, 0) is inside solid ground" in cap.err
     assert json.loads(cap.out)["viewer"] == [0, 0, 0]
+
+
+def test_cli_terrain_geotiff_prints_its_scale(tmp_path, capsys):
+    from jaxgfx.cli import main
+
+    h = np.round(_hills(20, 24, 700, 1500)).astype(np.int16)
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, h, geographic=True)
+    small = ["--resolution", "16", "--levels", "2", "--size", "32x24", "--smoothing", "2"]
+    out = ["--out", str(tmp_path / "a.png")]
+    assert main(["terrain", *small, "--function", f"heightmap:{path}", *out]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    truth = _ground_spacing(46.5 - 10 / 1200, -122.5, 1 / 1200, 1 / 1200)
+    np.testing.assert_allclose(rep["metres_per_sample"], truth, rtol=0.01)
+    mpv = rep["metres_per_voxel"]
+    np.testing.assert_allclose(mpv, mpv[0], rtol=1e-6)
+    assert rep["crs"] == "EPSG:4326" and rep["edge"] == "apron"
+    assert rep["cell"][0] == 1.0 and rep["cell"][1] == pytest.approx(truth[1] / truth[0])
 
 
 def test_subdivision_needs_a_key_and_views_draw_it(pipeline):

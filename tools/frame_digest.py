@@ -96,7 +96,7 @@ def main(argv=None) -> int:
 
     # 3. Per-plane ray caster (rle_bench): procedural tree and voxelized bunny, default
     #    settings and the thesis's 2x1 AA frame, plus the reference DDA.
-    static = getattr(RC, "RENDER_RLE_STATIC", None)  # before RenderSettings (all static)
+    static = getattr(RC, "RENDER_RLE_STATIC", None)  # layouts without RenderSettings
     render = jax.jit(RC.render_rle, static_argnames=static) if static else jax.jit(RC.render_rle)
     tree = V.procedural_tree(48, key=jax.random.key(1))
     scenes = {"tree": tree}

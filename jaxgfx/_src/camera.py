@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import check_int, static_field
+from jaxgfx._src.checks import check_float, check_int, static_field
 
 __all__ = [
     "Camera",
@@ -50,6 +50,8 @@ __all__ = [
     "projection_matrix",
     "stack_cameras",
     "validate_camera",
+    "as_float32",
+    "frame_points",
 ]
 
 
@@ -83,17 +85,37 @@ class Camera:
     height: int = static_field(480)
     pixel_aspect: float = static_field(1.0)
 
+    def __post_init__(self):
+        # Lists and tuples become float32 arrays, so a camera written by hand
+        # (``position=[0, 0, -5]``) is one leaf per field, as every kernel expects.
+        for name in _FLOAT_FIELDS:
+            value = getattr(self, name)
+            if isinstance(value, (list, tuple)):
+                object.__setattr__(self, name, np.asarray(value, np.float32))
+
     @property
     def shape(self) -> tuple[int, int]:
         """Image shape ``(height, width)``."""
         return (self.height, self.width)
 
 
-def validate_camera(cam: Camera) -> Camera:
-    """Checks a camera's concrete values; raises ``ValueError`` naming the field.
+_FLOAT_FIELDS = ("position", "yaw", "pitch", "roll", "fov_y", "near", "far")
 
-    Traced values (inside ``jit``) are skipped: validation happens before tracing.
+
+def as_float32(cam: Camera) -> Camera:
+    """``cam`` with every float field as float32 (the kernels' precision, also under x64)."""
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), cam)
+
+
+def validate_camera(cam: Camera) -> Camera:
+    """Checks a camera; raises ``TypeError``/``ValueError`` naming the field.
+
+    Types and shapes are checked on abstract values too, so the checks hold inside
+    ``jit``; values (finite, ``fov_y`` in (0, pi), ``0 < near < far``) where they are
+    concrete.  A batched camera (leading axes, :func:`stack_cameras`) is accepted.
     """
+    if not isinstance(cam, Camera):
+        raise TypeError(f"cam must be a jaxgfx Camera, got {type(cam).__name__}")
     check_int("width", cam.width, low=1)
     check_int("height", cam.height, low=1)
     pa = cam.pixel_aspect
@@ -101,8 +123,19 @@ def validate_camera(cam: Camera) -> Camera:
         raise TypeError(f"camera pixel_aspect must be a float, got {type(pa).__name__}")
     if not (math.isfinite(pa) and pa > 0):
         raise ValueError(f"camera pixel_aspect must be finite and > 0, got {pa}")
-    for name in ("position", "yaw", "pitch", "roll", "fov_y", "near", "far"):
+    for name in _FLOAT_FIELDS:
         value = getattr(cam, name)
+        try:
+            dtype = jnp.result_type(value)
+        except TypeError:
+            raise TypeError(
+                f"camera {name} must be a number or array, got {type(value).__name__}"
+            ) from None
+        if not jnp.issubdtype(dtype, jnp.number) or jnp.issubdtype(dtype, jnp.complexfloating):
+            raise TypeError(f"camera {name} must be real numbers, got {dtype}")
+        shape = np.shape(value)
+        if name == "position" and (len(shape) < 1 or shape[-1] != 3):
+            raise ValueError(f"camera position must have shape (3,), got {shape}")
         if isinstance(value, jax.core.Tracer):
             continue
         arr = np.asarray(value)
@@ -111,7 +144,9 @@ def validate_camera(cam: Camera) -> Camera:
     if not isinstance(cam.fov_y, jax.core.Tracer):
         fov = np.asarray(cam.fov_y)
         if np.any(fov <= 0) or np.any(fov >= math.pi):
-            raise ValueError(f"camera fov_y must be in (0, pi) radians, got {fov}")
+            raise ValueError(
+                f"camera fov_y must be in (0, pi) radians, got {fov} ({np.degrees(fov)} degrees)"
+            )
     if not isinstance(cam.near, jax.core.Tracer) and not isinstance(cam.far, jax.core.Tracer):
         near, far = np.asarray(cam.near), np.asarray(cam.far)
         if np.any(near <= 0):
@@ -147,6 +182,9 @@ def camera_from_degrees(
     """
     width = check_int("width", width, low=1)
     height = check_int("height", height, low=1)
+    fov = check_float("fov", fov)
+    if not 0.0 < fov < 180.0:
+        raise ValueError(f"fov must be in (0, 180) degrees, got {fov}")
     pos = np.asarray(position, dtype=np.float32)
     if pos.shape != (3,):
         raise ValueError(f"position must have shape (3,), got {pos.shape}")
@@ -246,7 +284,7 @@ def _camera_coords(cam: Camera, points: jax.Array) -> list[jax.Array]:
     """Camera-space x, y, z of world points (..., 3), each (...).
 
     Multiply-adds, not ``(points - position) @ rot.T``: XLA:CPU hands a (V, 3) x (3, 3)
-    dot to its matrix library, 7.9 ms for 360 k points against 0.2 ms this way.
+    dot to its matrix library, many times slower than these fused multiply-adds.
     """
     d = [points[..., k] - cam.position[k] for k in range(3)]
     return [r[0] * d[0] + r[1] * d[1] + r[2] * d[2] for r in camera_basis(cam)]
@@ -407,3 +445,99 @@ def stack_cameras(cams) -> Camera:
             f"stack_cameras: cameras differ in (width, height, pixel_aspect) {sorted(shapes)}"
         )
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *cams)
+
+
+def frame_points(
+    points,
+    view=(0.0, 0.35, 1.0),
+    fov: float = 45.0,
+    width: int = 640,
+    height: int = 480,
+    *,
+    margin: float = 0.05,
+    half_size: float = 0.0,
+) -> Camera:
+    """The camera looking along ``-view`` nearest to a subject that still shows all of it.
+
+    The view direction and the field of view are given; the eye is placed so that every
+    point projects inside the frame with ``margin`` of the frame left free on each side,
+    and the subject is centred where the fit leaves room.  The fit is exact for a
+    perspective camera, not a bounding sphere's approximation: with
+    ``(r, u, f)`` the camera basis and ``t = tan(fov_x / 2) (1 - 2 margin)``, a point
+    ``p`` lies inside horizontally when ``|p.r - a| <= t (p.f - c)`` for the eye
+    ``a r + b u + c f``; the nearest ``c`` meeting both sides for every point is
+    ``c = -(A+ + A-) / (2 t)`` with ``A+- = max(+-p.r - t p.f)``, and ``a = (A+ - A-) / 2``
+    centres the subject; the same holds vertically, and the eye takes the smaller ``c``.
+
+    Args:
+        points: (N, 3) world points of the subject (a mesh's vertices, voxel centres).
+        view: (3,) direction from the subject towards the eye, any length; y up.
+        fov: vertical field of view in degrees, in (0, 180).
+        width: image width in pixels.
+        height: image height in pixels.
+        margin: share of the frame's width and height left free on each side, in
+            [0, 0.45].
+        half_size: each point stands for an axis-aligned cube of this half edge (0.5 for
+            unit voxels at their centres); the whole cube is framed.
+
+    Returns:
+        A validated :class:`Camera` (no roll) whose near and far planes bracket the
+        subject (near half its nearest depth, far twice its farthest).
+
+    Raises:
+        ValueError: no points, non-finite points, ``view`` of zero length, ``fov``
+            outside (0, 180) degrees (e.g. radians passed by mistake: ``fov`` < 1 is
+            refused as implausible), or ``margin`` outside [0, 0.45].
+    """
+    width = check_int("width", width, low=1)
+    height = check_int("height", height, low=1)
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        raise ValueError("frame_points: points is empty; there is nothing to frame")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("frame_points: points must be finite")
+    if not (isinstance(fov, (int, float, np.integer, np.floating)) and 1.0 <= fov < 180.0):
+        raise ValueError(
+            f"frame_points: fov is the vertical field of view in degrees, in [1, 180), got "
+            f"{fov!r}" + (" (radians? pass degrees)" if 0 < float(fov) < 1.0 else "")
+        )
+    if not 0.0 <= margin <= 0.45:
+        raise ValueError(f"frame_points: margin must be in [0, 0.45], got {margin}")
+    if not (math.isfinite(half_size) and half_size >= 0):
+        raise ValueError(f"frame_points: half_size must be finite and >= 0, got {half_size}")
+    v = np.asarray(view, np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+        raise ValueError(f"frame_points: view must be a non-zero finite 3-vector, got {view!r}")
+    v = v / np.linalg.norm(v)
+    # The orientation of a camera looking along -view (look_at's yaw and pitch).
+    yaw = math.degrees(math.atan2(-v[0], -v[2])) if np.hypot(v[0], v[2]) > 1e-12 else 0.0
+    pitch = math.degrees(math.asin(float(np.clip(-v[1], -1.0, 1.0))))
+    probe = camera_from_degrees(np.zeros(3), yaw, pitch, 0.0, fov, width, height)
+    right, up, forward = (np.asarray(b, np.float64) for b in camera_basis(probe))
+    shrink = 1.0 - 2.0 * margin
+    ty = math.tan(math.radians(fov) / 2) * shrink
+    tx = ty * width / height
+    pr, pu, pf = p @ right, p @ up, p @ forward
+
+    def reach(w: np.ndarray) -> float:
+        # max over each point's cube of the linear function w: centre value + h |w|_1
+        return float(half_size * np.abs(w).sum())
+
+    def fit(ps: np.ndarray, axis: np.ndarray, t: float) -> tuple[float, float]:
+        hi = float(np.max(ps - t * pf) + reach(axis - t * forward))
+        lo = float(np.max(-ps - t * pf) + reach(-axis - t * forward))
+        return -(hi + lo) / (2.0 * t), (hi - lo) / 2.0
+
+    cx, a = fit(pr, right, tx)
+    cy, b = fit(pu, up, ty)
+    extent = float(np.linalg.norm(p.max(0) - p.min(0))) + 2.0 * math.sqrt(3.0) * half_size
+    scale = max(extent, 1e-6)
+    near_f = float(np.min(pf)) - half_size * np.abs(forward).sum()
+    # A subject with no extent across the view puts the eye on it: keep a little distance.
+    c = min(cx, cy, near_f - 0.01 * scale)
+    eye = a * right + b * up + c * forward
+    depth_lo = max(near_f - c, 1e-6 * scale)
+    depth_hi = float(np.max(pf)) + half_size * np.abs(forward).sum() - c
+    return camera_from_degrees(
+        eye, yaw, pitch, 0.0, fov, width, height, 0.5 * depth_lo, 2.0 * depth_hi + 1e-6 * scale
+    )

@@ -120,7 +120,7 @@ def lambert(
         albedo: (..., 3) base colour.
         light_dir: direction *towards* the light.
         ambient: ambient fraction in [0, 1].
-        two_sided: use |n.l| so faces seen from behind are lit too.
+        two_sided: use ``|n.l|`` so faces seen from behind are lit too.
     """
     light = jnp.asarray(light_dir, jnp.float32)
     light = light / jnp.linalg.norm(light)
@@ -134,12 +134,32 @@ def lambert(
 def fog(frame: Frame, fog_color=(0.78, 0.86, 0.95), density: float = 0.0) -> Frame:
     """Exponential distance fog ``mix(color, fog, 1 - exp(-density * depth))``.
 
-    Pixels with infinite depth (background) are left as they are.
+    Far geometry fades into what lies behind it: pass the background pass's colour
+    (``background(cam).color``, an (H, W, 3) image) as ``fog_color`` and every pixel fades
+    into the sky seen through it, so a distant object melts into the sky's gradient
+    instead of standing out as a flat cut-out of one fog colour.
+
+    Args:
+        frame: the composited frame.
+        fog_color: (3,) one colour, or (H, W, 3) a colour per pixel (the sky behind).
+        density: fog per unit of depth, >= 0.
+
+    Returns:
+        The fogged :class:`Frame`; pixels with infinite depth (background) are left as
+        they are.
     """
+    fc = jnp.asarray(fog_color, jnp.float32)
+    if fc.shape not in ((3,), tuple(frame.color.shape)):
+        raise ValueError(
+            f"fog_color must be (3,) or the frame's shape {tuple(frame.color.shape)}, "
+            f"got {fc.shape}"
+        )
+    if isinstance(density, (int, float)) and not density >= 0:  # traced values pass
+        raise ValueError(f"density must be >= 0, got {density}")
     finite = jnp.isfinite(frame.depth)
     z = jnp.where(finite, frame.depth, 0.0)
     k = (1.0 - jnp.exp(-density * z))[..., None]
-    c = frame.color * (1.0 - k) + jnp.asarray(fog_color, jnp.float32) * k
+    c = frame.color * (1.0 - k) + fc * k
     return Frame(jnp.where(finite[..., None], c, frame.color), frame.depth)
 
 

@@ -1,157 +1,247 @@
-"""Stacks of frames: run a per-frame kernel over a batch, split over this process's devices.
+"""Batching rules for per-frame kernels and the one ``shard_map`` wrapper of the package.
 
-Used by the rasterizer (:mod:`jaxgfx._src.zbuffer`, :mod:`jaxgfx.raster`) and, for the mesh
-alone, by :mod:`jaxgfx.sweep`, so that they build their device meshes the same way.
-
-A *stack* is a tuple of pytrees whose leaves all have a leading axis of 1 (shared by every
-frame) or B (one per frame).  :func:`stacked_vmap` turns a per-frame function into a
-``custom_vmap`` kernel over stacks: ``jax.vmap`` folds its axis into the stack, and the kernel
-runs the frames one after the other (``lax.map``), each frame's temporaries sized for one
-frame, instead of a vmapped program whose every buffer is multiplied by the batch.  With
-several local devices (host devices on CPU) the frames are split over them (``shard_map``).
+A renderer's frame is a program of data-dependent loops (the z-buffer's work list, the ray
+caster's plane walk).  Batched by plain ``jax.vmap`` every frame of a batch runs as long as the
+longest and takes every branch; run one after the other, each frame runs its own program.
+Which is faster depends on the backend: on XLA:CPU one frame at a time keeps each frame's
+buffers in cache and its loops short, while a GPU or TPU pays a launch and a host sync per
+loop iteration, so there the whole batch must advance in each iteration.
+:func:`per_frame` gives a per-frame function a ``custom_vmap`` rule that makes that choice
+per platform at lowering time (``jax.lax.platform_dependent``), and follows the data: a batch
+whose leading axis the user sharded over a mesh (``jax.make_mesh`` and
+``jax.device_put(x, NamedSharding(mesh, P("batch")))``) runs each device's frames on that
+device; anything else runs where its inputs are.  No device is ever chosen here.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh
+from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["BATCH_AXIS", "batch_mesh", "split_mesh", "stack_size", "map_frames", "stacked_vmap"]
+__all__ = [
+    "BATCHING",
+    "BATCH_AXIS",
+    "batch_mesh",
+    "shard_batch",
+    "shard",
+    "split_rows",
+    "per_frame",
+    "check_batching",
+]
 
 BATCH_AXIS = "batch"
+BATCHING = ("auto", "frames", "vectorized")
+"""Batching rules: by platform, frame by frame (``lax.map``), or one vectorized program."""
 
 
-def batch_mesh(devices=None, axis: str = BATCH_AXIS) -> Mesh:
-    """1-D mesh (axis ``axis``) over ``devices`` (default: all devices of all processes)."""
+def check_batching(batching: str) -> str:
+    """``batching`` if it names a rule of :data:`BATCHING`; raises ``ValueError`` otherwise."""
+    if batching not in BATCHING:
+        raise ValueError(f"batching must be one of {BATCHING}, got {batching!r}")
+    return batching
+
+
+def batch_mesh(devices=None, axis: str = BATCH_AXIS, *, explicit: bool = False) -> Mesh:
+    """1-D mesh (axis ``axis``) over ``devices`` (default: all devices of all processes).
+
+    ``explicit``: the axis is ``AxisType.Explicit`` (as ``jax.make_mesh`` makes it), so arrays
+    placed on it carry their sharding into traced code, where the batching rules read it;
+    otherwise it is ``Auto`` (for the sweep helpers, which place their batches themselves).
+    """
     devs = np.asarray(jax.devices() if devices is None else list(devices))
     if devs.size == 0:
         raise ValueError("devices: no devices to build a mesh over")
-    return Mesh(devs, (axis,))
+    kind = AxisType.Explicit if explicit else AxisType.Auto
+    return Mesh(devs, (axis,), axis_types=(kind,))
 
 
-def split_mesh(items: int) -> Mesh | None:
-    """Mesh of this process's devices to split ``items`` batch items over, or ``None``.
+def shard_batch(tree, devices=None):
+    """``tree`` placed with every leaf's leading (batch) axis split over ``devices``.
 
-    ``None`` (run on one device, as without a mesh) when there is only one local device or
-    one item, or when the caller is already inside a mesh context (a ``shard_map`` such as
-    :func:`jaxgfx.sweep.sharded_renderer`'s, or a mesh the user set): there the batch has
-    already been split, or the user placed it.  Only local devices: another process's
-    devices would turn one process's render into a collective program.  (Inside a user's
-    ``jit``, inputs committed to one device then meet this mesh's devices and JAX refuses
-    the program; such a caller sets its own mesh with ``jax.set_mesh``.)
+    The one step that puts a batch on every core of a CPU (given one host device per core,
+    ``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` before JAX starts) or on
+    every local accelerator: ``jax.jit(jax.vmap(f))(shard_batch(batch))`` then runs each
+    device's items on that device.  Shared inputs stay as they are.
+
+    Args:
+        tree: a pytree of arrays with one common leading axis B (e.g. stacked cameras).
+        devices: the devices (default: this process's devices); B must be a multiple of
+            their number.
+
+    Returns:
+        The same tree on a 1-D mesh over ``devices``, sharded along the batch axis (an
+        explicit mesh axis: results keep that sharding; ``np.asarray`` or
+        ``jax.device_get`` fetches them whole).
     """
-    devs = jax.local_devices()
-    if len(devs) < 2 or items < 2 or not jax.sharding.get_abstract_mesh().empty:
-        return None
-    # As few devices as give the same items per device: 6 items on 4 devices take 2 rounds
-    # either way, and 3 devices need no padded items (4 would render 2 copies).
-    per_device = -(-items // len(devs))
-    return batch_mesh(devs[: -(-items // per_device)])
+    mesh = batch_mesh(jax.local_devices() if devices is None else devices, explicit=True)
+    n = mesh.devices.size
+    sizes = {int(np.shape(x)[0]) for x in jax.tree_util.tree_leaves(tree) if np.ndim(x) > 0}
+    if len(sizes) != 1:
+        raise ValueError(f"tree: leaves must share one leading batch axis, got sizes {sizes}")
+    size = sizes.pop()
+    if size % n:
+        raise ValueError(
+            f"tree: a batch of {size} does not split evenly over {n} devices; pad it to "
+            f"{-(-size // n) * n} items or pass devices="
+        )
+    return jax.device_put(tree, NamedSharding(mesh, P(BATCH_AXIS)))
 
 
-def _lead(x) -> int:
-    return int(x.shape[0])
+def shard(fn: Callable, mesh, in_specs, out_specs) -> Callable:
+    """``jax.shard_map(fn)`` over ``mesh``, its arguments first placed as ``in_specs`` say.
 
-
-def stack_size(args) -> int:
-    """The stack's frame count B; every leaf's leading axis must be 1 or B."""
-    sizes = {_lead(x) for x in jax.tree_util.tree_leaves(args)}
-    frames = max(sizes)
-    if not sizes <= {1, frames}:
-        raise ValueError(f"leading axes must be 1 or one common size, got {sorted(sizes)}")
-    return frames
-
-
-def _map_local(frame_fn: Callable, args: tuple):
-    """``frame_fn`` over the stack's frames one after the other, on one device."""
-    frames = stack_size(args)
-
-    def one(k):
-        return frame_fn(*jax.tree_util.tree_map(lambda x: x[0 if _lead(x) == 1 else k], args))
-
-    if frames == 1:
-        return jax.tree_util.tree_map(lambda x: x[None], one(0))
-    return jax.lax.map(one, jnp.arange(frames, dtype=jnp.int32))
-
-
-def map_frames(frame_fn: Callable, args: tuple):
-    """Stacked outputs (B, ...) of ``frame_fn(*one_frame_args)`` for every frame of ``args``.
-
-    With several local devices (:func:`split_mesh`) the frames are split over them with
-    ``shard_map``: XLA:CPU runs one computation on one core, so this is what puts a batch
-    on every core.  The batch is padded to a multiple of the devices with copies of its last
-    frame (dropped after); shared leaves (leading 1) are replicated.  Every device runs the
-    same frame-by-frame program, so integer results equal the one-device path's exactly.
+    Over explicit mesh axes ``shard_map`` takes arguments only with exactly its specs, so an
+    argument placed otherwise (a batch padded on the host, a shared table) is resharded
+    first.  ``check_vma=False``: kernels build constants (empty z-buffers, loop counters) that
+    are not typed as device-varying, and loops whose carries mix shared and per-device values
+    would otherwise fail to trace; each device's work is independent or merged by explicit
+    collectives, so nothing relies on the check.
     """
-    frames = stack_size(args)
-    mesh = split_mesh(frames)
-    if mesh is None:
-        return _map_local(frame_fn, args)
-    pad = -frames % mesh.devices.size
+    mapped = jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
+    abstract = getattr(mesh, "abstract_mesh", mesh)
 
-    def padded(x):
-        if _lead(x) == 1 or not pad:
+    def placed(*args):
+        single = isinstance(in_specs, P) or not isinstance(in_specs, tuple)
+        specs = (in_specs,) * len(args) if single else in_specs
+        args = tuple(_on_mesh(a, abstract, sp) for a, sp in zip(args, specs, strict=True))
+        return mapped(*args)
+
+    return placed
+
+
+def _on_mesh(tree, mesh, spec):
+    """``tree`` resharded to ``spec`` on ``mesh`` where a leaf's sharding differs.
+
+    Only over explicit axes (``jax.make_mesh``'s default): there ``shard_map`` refuses an
+    argument whose sharding is not its spec, e.g. one leaf of a batch sharded and one not.
+    """
+    if AxisType.Explicit not in tuple(getattr(mesh, "axis_types", ())):
+        return tree
+
+    def place(x):
+        sharding = getattr(jax.typeof(x), "sharding", None)
+        have = tuple(getattr(sharding, "spec", ()))
+        want = tuple(spec) + (None,) * (np.ndim(x) - len(tuple(spec)))
+        if have == want or (not any(have) and not any(want)):
             return x
-        return jnp.concatenate([x, jnp.broadcast_to(x[-1:], (pad, *x.shape[1:]))])
+        with jax.sharding.use_abstract_mesh(mesh):
+            return jax.reshard(x, spec)
 
-    specs = jax.tree_util.tree_map(lambda x: P() if _lead(x) == 1 else P(BATCH_AXIS), args)
-    # check_vma=False: the kernel's constants (empty z-buffers, ...) are not typed as
-    # device-varying; no collectives are needed (each device's frames are independent).
-    run = jax.shard_map(
-        lambda *a: _map_local(frame_fn, a),
-        mesh=mesh,
-        in_specs=specs,
-        out_specs=P(BATCH_AXIS),
-        check_vma=False,
-    )
-    out = run(*jax.tree_util.tree_map(padded, args))
-    return jax.tree_util.tree_map(lambda x: x[:frames], out) if pad else out
+    return jax.tree_util.tree_map(place, tree)
 
 
-def stacked_vmap(frame_fn: Callable):
-    """``custom_vmap`` kernel ``kernel(*args) -> stacked outputs`` over stacks of frames.
+def _batch_axis(leaves: Sequence[Any]):
+    """``(mesh, axis)`` of the first leaf sharded along its leading axis, else ``None``.
 
-    ``kernel`` is :func:`map_frames` of ``frame_fn``.  Its vmap rule folds the vmapped axis
-    into the stack, (A, B) -> (A*B), so nested vmaps still give one stack; an argument the
-    vmap does not touch and that is shared (every leaf leading 1) stays shared.  Build it
-    once per static configuration (cache the caller), so that jit caches hit.
+    Read from the abstract value, so it sees shardings a user gave with explicit mesh axes
+    (``jax.make_mesh``'s default), inside ``jit`` as well as eagerly.
     """
+    for x in leaves:
+        sharding: Any = getattr(jax.typeof(x), "sharding", None)
+        spec = tuple(getattr(sharding, "spec", ()))
+        if spec and spec[0] is not None:
+            return sharding.mesh, spec[0]
+    return None
+
+
+def split_rows(fn: Callable, rows: Sequence[int]) -> Callable:
+    """``fn`` run by each device on its own rows where the row arguments are sharded.
+
+    For kernels whose work is independent per row (per vertex): when the positional
+    arguments ``rows`` are sharded along their leading axis (explicit mesh axes), each device
+    computes its rows (``shard_map``; the other arguments are shared) and the outputs come
+    back sharded the same way; otherwise ``fn`` runs as it is, where its inputs are.
+    """
+    rows = tuple(rows)
+
+    def wrapped(*args):
+        placed = _batch_axis([x for i in rows for x in jax.tree_util.tree_leaves(args[i])])
+        if placed is None:
+            return fn(*args)
+        mesh, axis = placed
+        specs = [P(axis) if i in rows else P() for i in range(len(args))]
+        return shard(fn, mesh, tuple(specs), P(axis))(*args)
+
+    return wrapped
+
+
+def per_frame(frame_fn: Callable, batching: str = "auto", chunk: int = 1) -> Callable:
+    """``frame_fn`` (written for one frame) with a batching rule chosen by platform.
+
+    Under ``jax.vmap`` the batch runs
+
+    * ``"frames"``: one frame after another (``lax.map``), each with its own loop trip counts
+      (``chunk`` > 1: chunks of that many frames vectorized, one chunk after another, which
+      keeps a chunk's tables in cache for kernels without data-dependent loops);
+    * ``"vectorized"``: as one program over the whole batch (``jax.vmap(frame_fn)``): every
+      loop iteration advances every frame, so the dependent iterations of a batch are those of
+      its slowest frame;
+    * ``"auto"``: ``"frames"`` on CPU and ``"vectorized"`` elsewhere, chosen when the program
+      is lowered (``jax.lax.platform_dependent``), so one exported program carries both.
+
+    When the batched arguments are sharded along the batch axis, each device runs its own
+    frames by the same rule (``shard_map`` over the user's mesh); nested ``vmap`` nests the
+    rule.  Arguments the ``vmap`` does not batch are shared by every frame, not copied.
+
+    Args:
+        frame_fn: function of one frame's arrays (pytrees allowed), returning a pytree.
+        batching: one of :data:`BATCHING` (static).
+        chunk: frames per step of the ``"frames"`` rule (static).
+
+    Returns:
+        A function with ``frame_fn``'s signature whose ``vmap`` follows the rule.
+    """
+    check_batching(batching)
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk must be a positive int, got {chunk!r}")
 
     @jax.custom_batching.custom_vmap
     def kernel(*args):
-        return map_frames(frame_fn, args)
+        return frame_fn(*args)
 
     @kernel.def_vmap
-    def fold(axis_size, in_batched, *args):
-        def inner(x, batched):
-            return x.shape[1] if batched else x.shape[0]
+    def rule(axis_size, in_batched, *args):
+        del axis_size
+        flat, tree = jax.tree_util.tree_flatten(args)
+        flags = jax.tree_util.tree_leaves(in_batched)
+        batched = [x for x, b in zip(flat, flags, strict=True) if b]
+        shared = [x for x, b in zip(flat, flags, strict=True) if not b]
 
-        frames = max(
-            inner(x, bt)
-            for a, b in zip(args, in_batched, strict=True)
-            for x, bt in zip(
-                jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True
-            )
-        )
+        def rebuild(frame, common):
+            it_frame, it_common = iter(frame), iter(common)
+            leaves = [next(it_frame) if b else next(it_common) for b in flags]
+            return jax.tree_util.tree_unflatten(tree, leaves)
 
-        def widen(x, batched):
-            if not batched:
-                x = jnp.broadcast_to(x[None], (axis_size, *x.shape))
-            x = jnp.broadcast_to(x, (axis_size, frames, *x.shape[2:]))
-            return x.reshape(axis_size * frames, *x.shape[2:])
+        def frames(frame_args, common):
+            if chunk > 1:
+                return jax.lax.map(
+                    lambda one: frame_fn(*rebuild(one, common)), frame_args, batch_size=chunk
+                )
+            # kernel, not frame_fn: an outer vmap of this map reaches the rule again.
+            return jax.lax.map(lambda one: kernel(*rebuild(one, common)), frame_args)
 
-        folded = []
-        for a, b in zip(args, in_batched, strict=True):
-            flags = jax.tree_util.tree_leaves(b)
-            shared = not any(flags) and all(_lead(x) == 1 for x in jax.tree_util.tree_leaves(a))
-            folded.append(a if shared else jax.tree_util.tree_map(widen, a, b))
-        out = kernel(*folded)
-        out = jax.tree_util.tree_map(lambda x: x.reshape(axis_size, frames, *x.shape[1:]), out)
+        def vectorized(frame_args, common):
+            return jax.vmap(lambda *one: frame_fn(*rebuild(one, common)))(*frame_args)
+
+        def local(frame_args, common):
+            if batching == "frames":
+                return frames(frame_args, common)
+            if batching == "vectorized":
+                return vectorized(frame_args, common)
+            return jax.lax.platform_dependent(frame_args, common, cpu=frames, default=vectorized)
+
+        placed = _batch_axis(batched)
+        if placed is None:
+            out = local(batched, shared)
+        else:
+            mesh, axis = placed
+            run = shard(lambda b, c: local(list(b), list(c)), mesh, (P(axis), P()), P(axis))
+            out = run(tuple(batched), tuple(shared))
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return kernel

@@ -4,8 +4,8 @@ XLA:CPU takes each call's buffers (temporaries and outputs) from ``malloc`` and 
 them when the call and its outputs are done.  glibc serves a large block (32 MB and up,
 or a new heap of a thread's arena) with fresh ``mmap`` pages and hands them back to the
 OS on ``free``, so every call touches its whole working set anew, one page fault per
-4 KiB (~3 us on this project's box).  A ray-cast frame of the 64^3 tree at 512x384 2x1
-took 16,400 faults and 68-70 ms CPU; with freed memory kept, 0 faults and 44-46 ms.
+4 KiB.  Kept for reuse, the next call's buffers come from pages already touched (see the
+design notes, docs/design/engine.md).
 """
 
 from __future__ import annotations

@@ -85,12 +85,15 @@ def load_mesh(path, up: str = "y"):
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unknown suffix or ``up``, the file cannot be parsed, or it has no faces.
+        ValueError: unknown suffix or ``up``, a directory, the file cannot be parsed, or it has
+            no faces (a point cloud is named as one).
     """
     import trimesh
 
     rot = up_rotation(up)  # checked before reading a possibly large file
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"mesh file {path} is a directory, expected a file")
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -103,6 +106,11 @@ def load_mesh(path, up: str = "y"):
         raise ValueError(f"mesh file {path} is malformed: {type(exc).__name__}: {exc}") from exc
     if not isinstance(loaded, trimesh.Trimesh):
         raise ValueError(f"mesh file {path} holds no triangle mesh (got {type(loaded).__name__})")
+    if len(loaded.faces) == 0 and _point_count(path):
+        raise ValueError(
+            f"mesh file {path} holds {_point_count(path)} points and no faces: a point "
+            "cloud, not a triangle mesh"
+        )
     if len(loaded.faces) == 0 or len(loaded.vertices) == 0:
         raise ValueError(
             f"mesh file {path} is empty: {len(loaded.vertices)} vertices, {len(loaded.faces)} faces"
@@ -114,6 +122,17 @@ def load_mesh(path, up: str = "y"):
         transform[:3, :3] = rot
         loaded.apply_transform(transform)
     return loaded
+
+
+def _point_count(path: Path) -> int:
+    """Vertices of a file that trimesh reads as a point cloud (no faces), else 0."""
+    import trimesh
+
+    try:
+        cloud = trimesh.load(path, process=False)
+    except Exception:
+        return 0
+    return len(cloud.vertices) if isinstance(cloud, trimesh.PointCloud) else 0
 
 
 def mesh_arrays(mesh, default_color=(0.75, 0.72, 0.68)):

@@ -46,8 +46,16 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec
 
-from jaxgfx._src.camera import Camera, screen_to_camera, validate_camera, world_to_camera
-from jaxgfx._src.frames import batch_mesh, stacked_vmap
+from jaxgfx._src.camera import (
+    Camera,
+    as_float32,
+    screen_to_camera,
+    validate_camera,
+    world_to_camera,
+)
+from jaxgfx._src.checks import check_int
+from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
+from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.zbuffer import (
     CHUNK,
     NO_TRI,
@@ -92,40 +100,55 @@ class RasterOutput(NamedTuple):
     bary: jax.Array  # (H, W, 3) perspective-correct barycentrics, 0 where empty
 
 
+def _concrete(x) -> bool:
+    """True when ``x`` has values now (not a tracer inside ``jit``/``vmap``/``grad``)."""
+    return not isinstance(x, jax.core.Tracer)
+
+
 def validate_mesh(vertices, faces, attributes=None) -> None:
-    """Checks concrete mesh arrays; raises ``ValueError``/``TypeError`` naming the problem.
+    """Checks mesh arrays; raises ``ValueError``/``TypeError`` naming the problem.
+
+    Shapes and dtypes are checked on abstract values too, so the checks hold inside
+    ``jit``; values (finite vertices, face indices in range) are checked where they are
+    concrete.  Under ``jit`` out-of-range face indices are clamped to ``[0, V)``, as JAX
+    clamps every gather index.
 
     Args:
         vertices: (V, 3) floats, all finite.
         faces: (F, 3) integers in ``[0, V)``.
         attributes: optional (V, C) per-vertex attributes, all finite.
     """
-    if isinstance(vertices, jax.core.Tracer) or isinstance(faces, jax.core.Tracer):
-        return
-    v = np.asarray(vertices)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[-1] != 3:
-        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
-    if not np.issubdtype(v.dtype, np.floating):
-        raise TypeError(f"vertices must be floating point, got {v.dtype}")
-    if not np.all(np.isfinite(v)):
-        bad = int(np.count_nonzero(~np.isfinite(v).all(axis=1)))
-        raise ValueError(f"vertices must be finite: {bad} vertices contain NaN or inf")
-    if f.ndim != 2 or f.shape[-1] != 3:
-        raise ValueError(f"faces must have shape (F, 3), got {f.shape}")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise TypeError(f"faces must be integer indices, got {f.dtype}")
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(
-            f"faces index out of range: indices span [{f.min()}, {f.max()}] "
-            f"but there are {len(v)} vertices"
-        )
-    if attributes is not None and not isinstance(attributes, jax.core.Tracer):
-        a = np.asarray(attributes)
-        if a.ndim != 2 or a.shape[0] != len(v):
-            raise ValueError(f"attributes must have shape (V, C) with V={len(v)}, got {a.shape}")
-        if not np.all(np.isfinite(a)):
+    v_shape, f_shape = np.shape(vertices), np.shape(faces)
+    if len(v_shape) != 2 or v_shape[-1] != 3:
+        raise ValueError(f"vertices must have shape (V, 3), got {v_shape}")
+    if not jnp.issubdtype(jnp.result_type(vertices), jnp.floating):
+        raise TypeError(f"vertices must be floating point, got {jnp.result_type(vertices)}")
+    if len(f_shape) != 2 or f_shape[-1] != 3:
+        raise ValueError(f"faces must have shape (F, 3), got {f_shape}")
+    if not jnp.issubdtype(jnp.result_type(faces), jnp.integer):
+        raise TypeError(f"faces must be integer indices, got {jnp.result_type(faces)}")
+    if attributes is not None:
+        a_shape = np.shape(attributes)
+        if len(a_shape) != 2 or a_shape[0] != v_shape[0]:
+            raise ValueError(
+                f"attributes must have shape (V, C) with V={v_shape[0]}, got {a_shape}"
+            )
+        if not jnp.issubdtype(jnp.result_type(attributes), jnp.number):
+            raise TypeError(f"attributes must be numbers, got {jnp.result_type(attributes)}")
+        if _concrete(attributes) and not np.all(np.isfinite(np.asarray(attributes))):
             raise ValueError("attributes must be finite")
+    if _concrete(vertices):
+        v = np.asarray(vertices)
+        if not np.all(np.isfinite(v)):
+            bad = int(np.count_nonzero(~np.isfinite(v).all(axis=1)))
+            raise ValueError(f"vertices must be finite: {bad} vertices contain NaN or inf")
+    if _concrete(faces):
+        f = np.asarray(faces)
+        if f.size and (f.min() < 0 or f.max() >= v_shape[0]):
+            raise ValueError(
+                f"faces index out of range: indices span [{f.min()}, {f.max()}] "
+                f"but there are {v_shape[0]} vertices"
+            )
 
 
 def coverage_count(
@@ -275,6 +298,7 @@ def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+@in_32bit
 def rasterize(
     cam: Camera,
     vertices: jax.Array,
@@ -285,16 +309,26 @@ def rasterize(
     block: int = 2,
     chunk: int = CHUNK,
     devices: int | Sequence[jax.Device] | None = None,
+    batching: str = "auto",
 ) -> RasterOutput:
     """Renders a triangle mesh with a z-buffer.
 
     Front faces are those whose vertices run counter-clockwise seen from the
-    camera (outward normals for trimesh meshes).
+    camera (outward normals for trimesh meshes).  Everything is computed in float32
+    (the z-buffer compares 1/z bit patterns), also under ``jax_enable_x64``.
+
+    Batches: ``jax.vmap`` over cameras and/or posed vertices renders a batch in one
+    program.  On a CPU the frames run one after the other (each with its own loop trip
+    counts), elsewhere as one vectorized program (``batching``).  The work runs where the
+    inputs are: a batch sharded over a mesh along its leading axis
+    (``jax.device_put(cams, NamedSharding(mesh, P("batch")))``) is split over the mesh's
+    devices, each rendering its own frames.
 
     Args:
         cam: the shared camera (resolution static).
         vertices: (V, 3) world positions.
-        faces: (F, 3) int vertex indices.
+        faces: (F, 3) int vertex indices; under ``jit`` out-of-range indices are
+            clamped to ``[0, V)`` (eager calls raise).
         attributes: (V, C) per-vertex attributes (colour, normal, ...);
             default: the world positions.
         cull_backfaces: drop faces that point away from the camera.
@@ -303,14 +337,14 @@ def rasterize(
             ``chunk * block**2`` fragments.
         devices: split this ONE frame's faces over several devices (static): an int D
             (the first D of ``jax.devices()``) or a sequence of devices; ``None`` or 1: one
-            device.  On a CPU this draws a frame on every core, given one host device per
-            core (``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` before JAX
-            starts); the result is bit-identical to one device (see
-            :mod:`jaxgfx._src.zsplit`).  Opt-in, not automatic, because it makes the call
-            an SPMD program over those devices.  Under ``jax.vmap`` the z-buffer split is
-            dropped (``custom_vmap``: the batch's frames are z-buffered whole, as without
-            ``devices``, so a batch that is itself split over devices is not split
-            twice); only the shading still gives each device its rows of every frame.
+            device.  On a CPU with one host device per core this draws a frame on every
+            core; the result is bit-identical to one device (see
+            :mod:`jaxgfx._src.zsplit`).  An explicit choice, because it makes the call an
+            SPMD program over those devices.  Under ``jax.vmap`` the z-buffer split is
+            dropped (a batch is split by its own sharding, never twice); the shading still
+            gives each device its rows of every frame.
+        batching: the ``vmap`` rule (static): ``"auto"`` (frame by frame on CPU,
+            vectorized elsewhere), ``"frames"`` or ``"vectorized"``.
 
     Returns:
         :class:`RasterOutput` with colour (H, W, C), depth (H, W) (camera z,
@@ -321,26 +355,29 @@ def rasterize(
         with respect to ``vertices``, ``attributes`` and the camera's float fields
         (position, angles, fov) wherever coverage does not change: the visible face of
         each pixel is found without gradients, then the pixel's ray is intersected with
-        that face differentiably.  Silhouette (coverage) gradients are therefore ZERO
-        here: moving an edge across a pixel changes the image, but no derivative says so
-        (use a soft rasterizer or edge sampling for those).  ``near``/``far`` act only
-        through coverage and get zero gradient; at grazing faces (ray almost in the
-        face's plane) the depth falls back to the z-buffer's and its gradient is zero.
+        that face differentiably.  Coverage itself is piecewise constant, so moving an
+        edge across a pixel has no derivative here; for images whose silhouettes have
+        gradients with respect to vertices and camera, pass this output to
+        :func:`jaxgfx.silhouette.analytic_antialias`.  ``near``/``far`` act only through
+        coverage and get zero gradient; at grazing faces (ray almost in the face's plane)
+        the depth falls back to the z-buffer's and its gradient is zero.
 
     Raises:
-        ValueError / TypeError: for bad concrete inputs (checked before tracing).
+        ValueError / TypeError: bad shapes, dtypes or static arguments (also inside
+            ``jit``), bad values of concrete inputs.
     """
-    if not isinstance(block, int) or block <= 0:
-        raise ValueError(f"block must be a positive int, got {block!r}")
-    if not isinstance(chunk, int) or chunk <= 0:
-        raise ValueError(f"chunk must be a positive int, got {chunk!r}")
+    check_int("block", block, low=1)
+    check_int("chunk", chunk, low=1)
+    if not isinstance(cull_backfaces, (bool, np.bool_)):
+        raise TypeError(f"cull_backfaces must be a bool, got {type(cull_backfaces).__name__}")
+    check_batching(batching)
     split = None if devices is None else resolve_devices(devices)
-    validate_camera(cam)
+    cam = as_float32(validate_camera(cam))
     validate_mesh(vertices, faces, attributes)
     vertices = jnp.asarray(vertices, jnp.float32)
-    faces = jnp.asarray(faces, jnp.int32)
+    faces = jnp.clip(jnp.asarray(faces, jnp.int32), 0, max(vertices.shape[0] - 1, 0))
     attributes = vertices if attributes is None else jnp.asarray(attributes, jnp.float32)
-    if faces.shape[0] == 0:
+    if faces.shape[0] == 0 or vertices.shape[0] == 0:
         h, w = cam.height, cam.width
         return RasterOutput(
             jnp.zeros((h, w, attributes.shape[-1]), jnp.float32),
@@ -348,7 +385,7 @@ def rasterize(
             jnp.full((h, w), -1, jnp.int32),
             jnp.zeros((h, w, 3), jnp.float32),
         )
-    static = (bool(cull_backfaces), block, chunk)
+    static = (bool(cull_backfaces), int(block), int(chunk), batching)
     if split is not None and len(split) > 1:
         return _rasterize_split(static, split, cam, vertices, faces, attributes)
     return _rasterize(static, cam, vertices, faces, attributes)
@@ -356,18 +393,13 @@ def rasterize(
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _rasterize(static, cam, vertices, faces, attributes):
-    """:func:`rasterize` of checked arrays: the whole frame as one stack of one frame.
+    """:func:`rasterize` of checked arrays: visibility and shading of one frame.
 
-    Under ``jax.vmap`` the ``custom_vmap`` rule of :func:`_raster_kernel` folds the batch
-    into the stack, whose frames are rendered (visibility AND shading) one after the other,
-    split over this process's devices when it has several: a vmapped shading pass over the
-    whole batch had every per-pixel temporary multiplied by the batch: shading cost ~20 ms
-    CPU per frame for 32 bunny frames at 512x384, 8-11 ms frame by frame (visibility
-    28-35 ms; session 11, load 5-7).  Gradients come from :func:`_rasterize_jvp`.
+    Under ``jax.vmap`` the frames follow the batching rule of :func:`_raster_kernel`
+    (frame by frame on XLA:CPU, where a vmapped shading pass multiplies every per-pixel
+    temporary by the batch).  Gradients come from :func:`_rasterize_jvp`.
     """
-    one = jax.tree_util.tree_map(lambda x: x[None], (cam, vertices, faces, attributes))
-    out = _raster_kernel(*static)(*one)
-    return RasterOutput(*(x[0] for x in out))
+    return RasterOutput(*_raster_kernel(*static)(cam, vertices, faces, attributes))
 
 
 @_rasterize.defjvp
@@ -392,8 +424,8 @@ def _rasterize_jvp(static, primals, tangents):
 
 
 @functools.cache
-def _raster_kernel(cull_backfaces: bool, block: int, chunk: int):
-    """``custom_vmap`` kernel over stacks of (camera, vertices, faces, attributes) frames."""
+def _raster_kernel(cull_backfaces: bool, block: int, chunk: int, batching: str):
+    """Visibility and shading of one frame, with the ``batching`` rule under ``vmap``."""
 
     def frame(cam, vertices, faces, attributes):
         inv_depth, face_id = _frame_visibility(
@@ -401,7 +433,7 @@ def _raster_kernel(cull_backfaces: bool, block: int, chunk: int):
         )
         return _shade(cam, vertices, faces, attributes, inv_depth, face_id)
 
-    return stacked_vmap(frame)
+    return per_frame(frame, batching)
 
 
 def _shade(cam, vertices, faces, attributes, inv_depth, face_id):
@@ -416,7 +448,7 @@ def _rasterize_split(static, split, cam, vertices, faces, attributes):
     The visible faces are found without gradients (``stop_gradient``: which face a pixel
     sees is piecewise constant), the shading is differentiable as in :func:`_rasterize`.
     """
-    cull_backfaces, block, chunk = static
+    cull_backfaces, block, chunk, batching = static
     cam_c, vertices_c = jax.lax.stop_gradient((cam, vertices))
     inv_depth, face_id = split_visible_faces(
         cam_c,
@@ -427,9 +459,10 @@ def _rasterize_split(static, split, cam, vertices, faces, attributes):
         block=block,
         chunk=chunk,
         tri_batch=TRI_BATCH,
+        batching=batching,
     )
     pv = world_to_camera(cam, vertices)  # (V, 3)
-    args = (cam, pv, faces, attributes, inv_depth[0], face_id[0])
+    args = (cam, pv, faces, attributes, inv_depth, face_id)
     if cam.height % len(split) == 0:
         return RasterOutput(*_split_shade_fn(split)(*args))
     return RasterOutput(*_shade_rows(*args, 0, cam.height))
@@ -490,12 +523,8 @@ def _split_shade_fn(devices: tuple):
         ]
         return _shade_rows(cam, pv, faces, attributes, *part, start, r)
 
-    return jax.shard_map(
-        local,
-        mesh=batch_mesh(devices, axis),
-        in_specs=(PartitionSpec(),) * 6,
-        out_specs=(PartitionSpec(axis),) * 4,
-        check_vma=False,
+    return shard(
+        local, batch_mesh(devices, axis), (PartitionSpec(),) * 6, (PartitionSpec(axis),) * 4
     )
 
 

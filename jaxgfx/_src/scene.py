@@ -107,12 +107,14 @@ def render_frame(
         fog_density: exponential fog density per world unit (0 = none).
         light_dir: direction towards the sun.
     """
-    frames = [background(cam)]
+    sky = background(cam)
+    frames = [sky]
     meshes = list(meshes)
     if meshes:
         frames.append(render_mesh_pass(cam, merge_mesh_passes(meshes), light_dir))
     frames.extend(extra_frames)
-    return fog(composite(frames), density=fog_density)
+    # far geometry fades into the sky behind each pixel, not into one flat colour
+    return fog(composite(frames), sky.color, density=fog_density)
 
 
 def grid_faces(n: int) -> np.ndarray:

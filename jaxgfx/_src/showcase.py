@@ -395,13 +395,14 @@ def build_demo(
         f"{int(terrain_pass.faces.shape[0])} triangles; static objects: {obj_desc}; "
         f"character: {ch_desc}"
     )
-    comp = jax.jit(lambda fs: fog(composite(fs), SKY_HORIZON, density=4.0 / (size * (1 << levels))))
+    # Fog fades into the sky behind each pixel (the background pass, frame 0).
+    comp = jax.jit(lambda fs: fog(composite(fs), fs[0].color, density=4.0 / (size * (1 << levels))))
     credits = tuple(
         c
         for c, used in (
-            (DEM_CREDIT, "St Helens" in map_desc),
+            (DEM_CREDIT, isinstance(hm, HeightmapData)),
             (KV6_CREDIT, "kv6" in obj_desc),
-            (FOX_CREDIT, "fox" in ch_desc),
+            (FOX_CREDIT, ch_desc.startswith("the glTF fox")),
         )
         if used
     )

@@ -22,9 +22,12 @@ localhost:
 
     jax.distributed.initialize("localhost:12345", num_processes=2, process_id=i)
 
-Every finished chunk is written atomically as ``chunk_XXXXX.npz`` beside a
-``manifest.json``; a sweep that is interrupted (even by SIGKILL) and started
-again with the same arguments skips the chunks already on disk.  The manifest records
+Every finished chunk is written atomically as a compressed ``chunk_XXXXX.npz`` (zlib)
+beside a ``manifest.json``; outputs named in ``images`` (8-bit colour frames) are stored
+as one PNG per item instead, which is several times smaller than the raw pixels and
+directly viewable.  A sweep that is interrupted (Ctrl-C, or even SIGKILL) and started
+again with the same arguments skips the chunks already on disk: a chunk counts as done
+when its ``.npz`` (written last) and every one of its images are there.  The manifest records
 what defines the results (parameters, chunking, a hash of the lowered render function, the
 output shapes, an optional version string); a different sweep into the same folder is
 refused with a ValueError that names what differs, so results never mix.
@@ -41,7 +44,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,8 +53,18 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxgfx._src.checks import check_int
-from jaxgfx._src.frames import batch_mesh
-from jaxgfx._src.io import atomic_write, save_json
+from jaxgfx._src.chunks import (
+    check_image_outputs,
+    chunk_complete,
+    chunk_path,
+    image_path,
+    image_patterns,
+    load_sweep,
+    read_images,
+    write_chunk,
+)
+from jaxgfx._src.frames import BATCH_AXIS, batch_mesh, shard
+from jaxgfx._src.io import save_json
 
 __all__ = [
     "batch_size",
@@ -65,6 +78,7 @@ __all__ = [
     "SweepMismatch",
     "load_sweep",
     "chunk_path",
+    "image_path",
 ]
 
 
@@ -130,24 +144,23 @@ def sharded_renderer(render_fn: Callable, devices=None) -> ShardedRenderer:
         A :class:`ShardedRenderer`: ``params -> outputs`` for a batch of items.
     """
     mesh = device_mesh(devices)
-    shard = NamedSharding(mesh, PartitionSpec("batch"))
+    batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
     return ShardedRenderer(
-        mesh, jax.jit(_per_device(render_fn, mesh), in_shardings=shard, out_shardings=shard)
+        mesh,
+        jax.jit(
+            _per_device(render_fn, mesh), in_shardings=batch_sharding, out_shardings=batch_sharding
+        ),
     )
 
 
 def _per_device(render_fn: Callable, mesh: Mesh) -> Callable:
     """``vmap(render_fn)`` run by each device on its own slice of the batch (``shard_map``).
 
-    The partitioner would otherwise see the whole batch: the rasterizer's ``custom_vmap``
-    rule loops over frames (``lax.map``), which it cannot split, so every device would
-    gather and render all frames.
+    ``render_fn`` may be any function of one item; inside ``shard_map`` each device sees
+    only its own items, so the partitioner never has to split a user's loops.
     """
-    spec = PartitionSpec("batch")
-    # check_vma=False: render functions need not type their constants as device-varying.
-    return jax.shard_map(
-        jax.vmap(render_fn), mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False
-    )
+    spec = PartitionSpec(BATCH_AXIS)
+    return shard(jax.vmap(render_fn), mesh, spec, spec)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,8 +220,8 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
 
     ``chunk`` runs each device's shard as ``lax.map(fn, batch_size=chunk)``: ``chunk`` items
     vmapped at a time, in a loop.  Table lookups (skinning's bone matrices) then stay in the
-    core's cache: 64-bone LBS of 80 poses x 12,546 vertices took 48 ms CPU time vmapped and
-    25-26 ms in chunks of 4-16 on the 2-core box.  A batch that is not a multiple of the
+    core's cache (``python -m experiments.skinning_bench`` compares chunks with one vmap).
+    A batch that is not a multiple of the
     device count is padded with its last item and the outputs are cut back (one extra copy).
     Calls with the same shapes do not recompile.
 
@@ -241,13 +254,10 @@ def sharded_vmap(fn: Callable, in_axes, devices=None, *, chunk: int | None = Non
 
         return jax.lax.map(one, batched, batch_size=chunk)
 
-    spec = tuple(PartitionSpec("batch") if a == 0 else PartitionSpec() for a in axes)
-    # check_vma=False, as in sharded_renderer: a loop whose carry mixes shared and
-    # per-item values (the ray caster's plane loop) would otherwise fail to trace.
+    spec = tuple(PartitionSpec(BATCH_AXIS) if a == 0 else PartitionSpec() for a in axes)
     jitted = jax.jit(
-        jax.shard_map(
-            local, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"), check_vma=False
-        )
+        shard(local, mesh, spec, PartitionSpec(BATCH_AXIS)),
+        in_shardings=tuple(NamedSharding(mesh, sp) for sp in spec),
     )
     return ShardedMap(mesh, axes, jitted)
 
@@ -258,11 +268,11 @@ def _spans_processes(mesh: Mesh) -> bool:
 
 
 def _run(fn, params, mesh):
-    shard = NamedSharding(mesh, PartitionSpec("batch"))
+    batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
 
     def put(x):
         x = np.asarray(x)
-        return jax.make_array_from_callback(x.shape, shard, lambda idx: x[idx])
+        return jax.make_array_from_callback(x.shape, batch_sharding, lambda idx: x[idx])
 
     out = fn(jax.tree_util.tree_map(put, params))
     # Only a mesh over several processes leaves shards this process cannot read; a sweep over
@@ -272,11 +282,6 @@ def _run(fn, params, mesh):
 
         out = multihost_utils.process_allgather(out, tiled=True)
     return jax.tree_util.tree_map(np.asarray, out)
-
-
-def chunk_path(out_dir, k: int) -> Path:
-    """File of chunk ``k`` inside a sweep directory."""
-    return Path(out_dir) / f"chunk_{k:05d}.npz"
 
 
 def _fingerprint(params, chunk_size: int) -> str:
@@ -332,6 +337,7 @@ _PARTS = {
     "or the backend)",
     "outputs": "the output names, shapes or dtypes",
     "version": "the version string",
+    "images": "the outputs stored as PNG images, or their file names",
     "fingerprint": "the manifest's format (written by an older jaxgfx)",
 }
 
@@ -388,7 +394,7 @@ def _decide(out_dir: Path, manifest: dict, sizes: list[int], mesh: Mesh) -> list
                 _check_manifest(out_dir, json.loads(mpath.read_text()), manifest)
             else:
                 save_json(mpath, manifest)
-            done = [_chunk_ok(chunk_path(out_dir, k), m) for k, m in enumerate(sizes)]
+            done = [chunk_complete(out_dir, k, sizes, manifest) for k in range(len(sizes))]
         except SweepMismatch as exc:
             error = exc
     if _spans_processes(mesh):
@@ -406,14 +412,6 @@ def _decide(out_dir: Path, manifest: dict, sizes: list[int], mesh: Mesh) -> list
     return done
 
 
-def _chunk_ok(path: Path, n_items: int) -> bool:
-    try:
-        with np.load(path) as z:
-            return all(z[k].shape[0] == n_items for k in z.files) and len(z.files) > 0
-    except Exception:
-        return False
-
-
 def run_sweep(
     render_fn: Callable,
     params,
@@ -423,6 +421,7 @@ def run_sweep(
     progress: bool = True,
     on_chunk: Callable | None = None,
     version: str | None = None,
+    images: Sequence[str] | Mapping[str, str] = (),
 ) -> dict:
     """Renders every item of ``params`` in chunks, resumably.
 
@@ -441,11 +440,21 @@ def run_sweep(
         version: optional label of what ``render_fn`` means (e.g. ``"shading v3"``); stored
             in the manifest and compared on resume, for changes the lowered computation
             cannot see (e.g. an ``on_chunk`` that writes other files).
+        images: outputs stored as one PNG per item instead of inside the chunk's
+            ``.npz``: uint8 ``(H, W)`` or ``(H, W, 3|4)`` per item (e.g. a colour frame
+            through :func:`jaxgfx.compose.to_uint8`).  A sequence of output names stores
+            ``NAME_{i:05d}.png`` in ``out_dir``; a mapping gives each name its file
+            pattern, formatted with the item index ``i`` and taken relative to
+            ``out_dir`` (e.g. ``{"color": "../frame_{i:05d}.png"}``).  PNG is lossless:
+            :func:`load_sweep` returns the same arrays.
 
     A sweep started again into the same ``out_dir`` reuses the chunks on disk only when
     everything that defines them is unchanged: the parameters, the chunking, the render
     function (a hash of ``jax.jit(jax.vmap(render_fn))`` lowered for one chunk, see
-    :func:`render_fingerprint`), the output names, shapes and dtypes, and ``version``.
+    :func:`render_fingerprint`), the output names, shapes and dtypes, ``version`` and
+    ``images``.  Chunks are stored compressed (``np.savez_compressed``); an interrupted
+    write leaves no partial file (:func:`jaxgfx.io.atomic_write`), so a chunk on disk is
+    always whole.
 
     Returns:
         Summary dict: ``{"n", "chunks", "computed", "skipped", "devices", "out_dir"}``.
@@ -455,6 +464,7 @@ def run_sweep(
             names each part that differs (params, chunking, function, outputs, version).
             Nothing is written.
         TypeError: ``render_fn`` does not return a dict of arrays, or ``version`` is not a str.
+        ValueError: ``images`` names an output that is missing or not 8-bit images.
     """
     chunk_size = check_int("chunk_size", chunk_size, low=1)
     if version is not None and not isinstance(version, str):
@@ -470,6 +480,8 @@ def run_sweep(
     defines, out_info = _lowered_fingerprint(render_fn, _slice(params, 0, 1, chunk_size))
     if not isinstance(out_info, dict):
         raise TypeError("render_fn must return a dict of arrays")
+    patterns = image_patterns(images)
+    check_image_outputs(patterns, out_info)
     manifest = {
         "n": n,
         "chunk_size": chunk_size,
@@ -478,6 +490,8 @@ def run_sweep(
         **defines,
         "version": version,
     }
+    if patterns:  # absent when unused: manifests of sweeps without images stay as they were
+        manifest["images"] = patterns
     out_dir.mkdir(parents=True, exist_ok=True)
     sizes = [min(n, (k + 1) * chunk_size) - k * chunk_size for k in range(n_chunks)]
     done = _decide(out_dir, manifest, sizes, mesh)
@@ -493,28 +507,30 @@ def run_sweep(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n_chunks, desc="sweep", unit="chunk")
-    for k in range(n_chunks):
-        start, stop = k * chunk_size, min(n, (k + 1) * chunk_size)
-        path = chunk_path(out_dir, k)
-        if done[k]:
-            skipped += 1
-            if on_chunk is not None and writer:
-                with np.load(path) as z:
-                    on_chunk(k, start, {key: z[key] for key in z.files})
-        else:
-            out = _run(fn, _slice(params, start, stop, chunk_size), mesh)
-            out = {key: v[: stop - start] for key, v in out.items()}
-            if writer:
-                with atomic_write(path) as tmp:
-                    with open(tmp, "wb") as fh:
-                        np.savez(fh, **out)
-            computed += 1
-            if on_chunk is not None and writer:
-                on_chunk(k, start, out)
+    try:
+        for k in range(n_chunks):
+            start, stop = k * chunk_size, min(n, (k + 1) * chunk_size)
+            path = chunk_path(out_dir, k)
+            if done[k]:
+                skipped += 1
+                if on_chunk is not None and writer:
+                    with np.load(path) as z:
+                        found = {key: z[key] for key in z.files}
+                    found.update(read_images(out_dir, patterns, start, stop - start))
+                    on_chunk(k, start, found)
+            else:
+                out = _run(fn, _slice(params, start, stop, chunk_size), mesh)
+                out = {key: v[: stop - start] for key, v in out.items()}
+                if writer:
+                    write_chunk(out_dir, k, start, out, patterns)
+                computed += 1
+                if on_chunk is not None and writer:
+                    on_chunk(k, start, out)
+            if bar is not None:
+                bar.update(1)
+    finally:  # also on Ctrl-C: the bar's last line comes before the caller's message
         if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+            bar.close()
     return {
         "n": n,
         "chunks": n_chunks,
@@ -523,18 +539,3 @@ def run_sweep(
         "devices": ndev,
         "out_dir": str(out_dir),
     }
-
-
-def load_sweep(out_dir) -> dict:
-    """Concatenates every chunk of a finished sweep -> dict of (N, ...) arrays."""
-    out_dir = Path(out_dir)
-    manifest = json.loads((out_dir / "manifest.json").read_text())
-    parts: dict[str, list] = {}
-    for k in range(manifest["n_chunks"]):
-        path = chunk_path(out_dir, k)
-        if not path.exists():
-            raise FileNotFoundError(f"sweep in {out_dir} is incomplete: {path.name} missing")
-        with np.load(path) as z:
-            for key in z.files:
-                parts.setdefault(key, []).append(z[key])
-    return {key: np.concatenate(v) for key, v in parts.items()}

@@ -1,54 +1,20 @@
 """The z-buffer kernel of :mod:`jaxgfx.raster`: clipping, triangle setup, visibility.
 
-:func:`visible_faces` works on a *stack* of frames (``custom_vmap``, see
-:mod:`jaxgfx._src.frames`; :func:`jaxgfx.raster.rasterize` uses the same per-frame
-kernel with its shading), so a batch runs the single-frame kernel frame by frame
-inside one program instead of a vmapped while loop whose scatters and gathers
-become batched ones.  No step touches a whole frame per chunk.
-:func:`visibility` can also take the setups of
-several frames laid one after the other (``frames=B``, one B*H*W z-buffer); on
-the 2-core CPU that measured 1.3x slower than frame by frame (cache), so
-``visible_faces`` does not use it.
+:func:`visible_faces` finds the nearest face per pixel of one frame; under ``jax.vmap`` a batch
+follows the batching rule of :mod:`jaxgfx._src.frames` (frame by frame on XLA:CPU, where each
+frame's buffers stay in cache; one vectorized program elsewhere).  :func:`visibility` can also
+take the setups of several frames laid one after the other (``frames=B``, one B*H*W
+z-buffer).
 
-Results do not depend on how the work is cut into chunks or frames: a pixel
-keeps the largest 1/z (compared as int32 bit patterns, exact) and, among exact
-ties, the smallest face index.  So a frame rendered alone and the same frame
-inside a batch see the same faces.
+Results do not depend on how the work is cut into chunks or frames: a pixel keeps the largest
+1/z (compared as int32 bit patterns, exact) and, among exact ties, the smallest face index.  So
+a frame rendered alone and the same frame inside a batch see the same faces.
 
-Where one frame's time goes (session 11; process CPU time, 2-core box under load):
-before, a chunk of 131 k fragment slots cost 5.9 ms to generate (45 ns a slot) and
-1.1 ms to z-test (3 scatters, 2 gathers).  The generation was scalar code: its loop
-fusion was flattened with ``reshape(-1)`` and read a (22, K) row gather laid out item
-by item; as (block*block, K) planes over contiguous rows the same arithmetic takes
-~0.35 ms.  Then, for the 718 k-face terrain at 1024x768, the setup of the second
-clipped triangle of every face (empty unless a face crosses the near plane; now only for
-batches that cross it), ``jnp.cumsum`` (a reduce-window; now an associative scan) and chunks
-left partly filled at each face batch's end (66 chunk passes for 29 chunks of work;
-now 2^16 faces per batch and 2^14 items per chunk) cost ~100 ms together.  Now
-(load ~8): terrain visibility ~172 ms (setup ~60, fragment loop ~108) + shading ~40;
-bunny 512x384 ~12 + ~5.  Tried and dropped: one int64 (1/z bits, face id) key and a
-single scatter-max per fragment (the scatter is as fast, but the int64 arithmetic does
-not vectorise: fragment generation 4x slower); an item -> triangle table (scatter and
-running max) instead of the binary search (neutral: XLA turned the per-chunk
-``lax.cond`` choosing between them into a select that ran both); (h, w) planes in the
-resolve and 9 one-dimensional corner gathers in the setup (no change).
-
-Session 12, from a ``jax.profiler`` trace (per-op times of the XLA:CPU thunks) and the
-compiled HLO: the z-test loop copied its whole z-buffer twice per chunk (the gather of the
-pre-scatter depths was fused *after* the in-place scatter-max, so XLA kept a copy; they are
-now gathered at the end of the previous iteration and carried), copied its three fragment
-carries per chunk (the next chunk's fragments were scheduled before the scatters had read
-the current ones; now they depend on the z-test's result), the setup stacked its 22 rows
-into one array (a 5.8 MB copy per face batch; now a tuple of rows), ``searchsorted``'s
-scan carried and copied two bounds per halving step (now :func:`_count_le`, one carried
-position), and ``world_to_camera``'s (V, 3) x (3, 3) dot went to XLA:CPU's matrix library
-(7.9 ms for 360 k vertices; now multiply-adds, 0.2 ms).  Same face ids bit for bit; one
-process, old and new interleaved (load ~3, one core busy with other work): terrain
-1024x768 CPU 0.77x, bunny 512x384 0.81x.  Tried and not kept: masking rejected fragments'
-pixel indices to an out-of-range value so the scatters drop them (1.19x: the masked
-scatter branches), ``lax.scatter`` without ``.at[]``'s index normalisation (a (N, 1)
-index copy stays; neutral), ``method="scan_unrolled"`` (1.6x) and an unrolled branchless
-search (1.5x), generating fragments without the per-chunk ``lax.cond`` (1.05-1.09x).
+Fragments are generated per chunk of the (triangle, tile) work list as (block^2, K) planes over
+contiguous rows, which XLA:CPU vectorises; faces are set up and z-buffered :data:`TRI_BATCH` at a
+time so a large mesh's temporaries stay small (fresh pages cost a fault each); the second
+triangles of near-plane clipping are set up only for face batches that cross the plane.  The
+measurements behind these choices are in the design notes (``docs/design/engine.md``).
 """
 
 from __future__ import annotations
@@ -61,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, focal_lengths, world_to_camera_soa
-from jaxgfx._src.frames import stacked_vmap
+from jaxgfx._src.frames import check_batching, per_frame
 
 __all__ = [
     "ClippedTriangles",
@@ -81,8 +47,8 @@ _OUT = np.int32(np.iinfo(np.int32).max)  # pixel index of a rejected fragment (d
 # Faces per setup batch (see _frame_visibility): ~26 MB of setup temporaries, under
 # glibc's largest mmap threshold (32 MB), so the buffers are reused between calls.  Each
 # batch ends with a partly filled chunk; 2^16 faces and chunks of 2^14 work items
-# measured best of (2^14..2^17 faces) x (2^13..2^15 items): bunny 512x384 19 -> 14.5 ms,
-# the 718 k-face terrain at 1024x768 250 -> 194 ms (visibility, load 4.4, same run).
+# the fastest of (2^14..2^17 faces) x (2^13..2^15 items) on the bunny and the 718 k-face
+# terrain (see the design notes).
 TRI_BATCH = 1 << 16
 CHUNK = 1 << 14  # work items (tiles) per z-buffer pass
 
@@ -295,7 +261,7 @@ def _chunk_fragments(cam, setup, starts, offsets, total, chunk0, chunk, block, t
         pix = pix + ((t // tris_per_item) * (cam.width * cam.height))[None]
     fid = jnp.broadcast_to(irow[5][None], pix.shape)
     # Not flattened: an XLA:CPU loop fusion whose result is reshaped to 1-D indexes it
-    # linearly and stops vectorising (measured 9x slower); scatters take (B*B, K).
+    # linearly and stops vectorising; scatters take (B*B, K).
     return pix, w, fid, ok
 
 
@@ -320,7 +286,7 @@ def _count_le(sorted_x, q):
 
 def _prefix_sum(x):
     """Inclusive prefix sum, exact for ints: ``jnp.cumsum`` is a reduce-window on XLA:CPU,
-    3x slower (1.5 ms for 2^16 ints; 34 ms of a 718 k-face frame's 240)."""
+    several times slower for the work list's lengths."""
     return jax.lax.associative_scan(jnp.add, x) if x.shape[0] else x
 
 
@@ -451,14 +417,14 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
 
     A frame's setup holds ~200 bytes per face; for a large mesh (the 718 k-face terrain:
     ~300 MB of temporaries) XLA:CPU's per-call buffers then come fresh from the OS and
-    touching them (page faults, ~3 us per 4 KiB) cost as much as the rasterization.
+    touching them (a page fault per 4 KiB) costs as much as the rasterization.
     Setting up and z-buffering the faces in batches bounds the temporaries, and the
     result is the same: the z-buffer keeps the largest 1/z and the smallest face id
     among exact ties whatever the order.  For the same reason each batch draws the first
     triangle of every face, then the second triangles that near-plane clipping makes only
     if a face of the batch has two corners in front of the plane: otherwise that half of
-    the slots is all empty, and setting it up cost ~1/3 of a terrain frame.  A batch with
-    no face crossing the plane skips the clipping arithmetic too (terrain 0.87-0.92x CPU).
+    the slots is all empty, and setting it up is a large share of a terrain frame.  A batch
+    with no face crossing the plane skips the clipping arithmetic too.
     """
     n = faces.shape[0]
     batches = max(1, -(-n // tri_batch))
@@ -505,22 +471,17 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
 
 
 @functools.cache
-def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
-    """The ``custom_vmap`` kernel for one static configuration (built once, cached).
-
-    Frame by frame inside one program: each frame's z-buffer (H*W int32 twice) stays in
-    cache, where one folded B*H*W z-buffer measured 1.3x slower for 32 bunny frames at
-    512x384 (random scatters over 50 MB), and a vmapped setup ~5x slower.
-    """
+def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: int, batching: str):
+    """The batching kernel for one static configuration (built once, cached)."""
 
     def frame(cam, vertices, faces):  # (1/z, face id), each flat (H*W,)
         return _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch)
 
-    return stacked_vmap(frame)
+    return per_frame(frame, batching)
 
 
 def visible_faces(
-    cams: Camera,
+    cam: Camera,
     vertices: jax.Array,
     faces: jax.Array,
     *,
@@ -528,24 +489,29 @@ def visible_faces(
     block: int = 2,
     chunk: int = CHUNK,
     tri_batch: int = TRI_BATCH,
+    batching: str = "auto",
 ) -> tuple[jax.Array, jax.Array]:
-    """Nearest face per pixel for a stack of frames (no gradients flow through it).
+    """Nearest face per pixel of one frame (no gradients flow through it).
 
-    Under ``jax.vmap`` the new axis is folded into the stack (``custom_vmap``), and the
-    frames are rendered one after the other, split over this process's devices when it
-    has several (:func:`jaxgfx._src.frames.map_frames`).
+    Under ``jax.vmap`` the frames follow ``batching`` (:func:`jaxgfx._src.frames.per_frame`):
+    on XLA:CPU one after the other, where each frame's z-buffer (H*W int32 twice) stays in
+    cache (one folded B*H*W z-buffer is slower: random scatters over the whole batch's
+    buffers); elsewhere as one program over the batch.
 
     Args:
-        cams: cameras with a leading axis of 1 (shared) or B; static resolution.
-        vertices: (1 or B, V, 3) world positions.
-        faces: (1 or B, F, 3) int32 vertex indices.
+        cam: the camera; static resolution.
+        vertices: (V, 3) world positions.
+        faces: (F, 3) int32 vertex indices.
         cull_backfaces, block, chunk: as in :func:`jaxgfx.raster.rasterize` (static).
         tri_batch: faces set up and z-buffered at a time (static); bounds a frame's
             temporaries for large meshes without changing the result.
+        batching: the ``vmap`` rule, one of ``"auto"``, ``"frames"``, ``"vectorized"``.
 
     Returns:
-        ``(inv_depth, face_id)``, each (B, H*W): the largest 1/z (0 where empty) and
-        the face index (``NO_TRI`` where empty).
+        ``(inv_depth, face_id)``, each (H*W,): the largest 1/z (0 where empty) and the face
+        index (``NO_TRI`` where empty).
     """
-    fn = _visible_faces_fn(bool(cull_backfaces), int(block), int(chunk), int(tri_batch))
-    return fn(cams, vertices, faces)
+    fn = _visible_faces_fn(
+        bool(cull_backfaces), int(block), int(chunk), int(tri_batch), check_batching(batching)
+    )
+    return fn(cam, vertices, faces)

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec
 
-from jaxgfx._src.frames import batch_mesh
+from jaxgfx._src.frames import batch_mesh, shard
 from jaxgfx._src.zbuffer import NO_TRI, _frame_visibility, visible_faces
 
 __all__ = ["split_visible_faces", "resolve_devices"]
@@ -63,10 +63,11 @@ def resolve_devices(devices) -> tuple:
 
 
 @functools.cache
-def _split_fn(devices: tuple, cull_backfaces: bool, block: int, chunk: int, tri_batch: int):
+def _split_fn(
+    devices: tuple, cull_backfaces: bool, block: int, chunk: int, tri_batch: int, batching: str
+):
     """The split kernel for one static configuration (built once, cached)."""
     d = len(devices)
-    mesh = batch_mesh(devices, _AXIS)
     static = dict(cull_backfaces=cull_backfaces, block=block, chunk=chunk, tri_batch=tri_batch)
 
     def local(cam, vertices, faces):
@@ -79,14 +80,13 @@ def _split_fn(devices: tuple, cull_backfaces: bool, block: int, chunk: int, tri_
         fid = jnp.where(fid != NO_TRI, fid * d + k, NO_TRI)
         zmax = jax.lax.pmax(zbits, _AXIS)
         fid = jax.lax.pmin(jnp.where(zbits == zmax, fid, NO_TRI), _AXIS)
-        return jax.lax.bitcast_convert_type(zmax, jnp.float32)[None], fid[None]
+        return jax.lax.bitcast_convert_type(zmax, jnp.float32), fid
 
-    split = jax.shard_map(
+    split = shard(
         local,
-        mesh=mesh,
-        in_specs=(PartitionSpec(), PartitionSpec(), PartitionSpec(_AXIS)),
-        out_specs=(PartitionSpec(), PartitionSpec()),
-        check_vma=False,
+        batch_mesh(devices, _AXIS),
+        (PartitionSpec(), PartitionSpec(), PartitionSpec(_AXIS)),
+        (PartitionSpec(), PartitionSpec()),
     )
 
     @jax.custom_batching.custom_vmap
@@ -101,15 +101,14 @@ def _split_fn(devices: tuple, cull_backfaces: bool, block: int, chunk: int, tri_
 
     @kernel.def_vmap
     def whole_frames(axis_size, in_batched, cam, vertices, faces):
-        # A batch keeps its frames whole (visible_faces and its own vmap rule), never
-        # split twice: the batch axis is its stack of frames (1 where not batched).
+        # A batch keeps its frames whole (visible_faces and its own batching rule), never
+        # split twice: the batch is placed by its own sharding.
         del axis_size
-        stack = [
-            jax.tree_util.tree_map(lambda x, b: x if b else x[None], a, flags)
-            for a, flags in zip((cam, vertices, faces), in_batched, strict=True)
-        ]
-        inv_depth, fid = visible_faces(*stack, **static)
-        return (inv_depth[:, None], fid[:, None]), (True, True)
+        axes = [jax.tree_util.tree_map(lambda b: 0 if b else None, a) for a in in_batched]
+        out = jax.vmap(
+            lambda c, v, f: visible_faces(c, v, f, batching=batching, **static), in_axes=axes
+        )(cam, vertices, faces)
+        return out, (True, True)
 
     return kernel
 
@@ -124,6 +123,7 @@ def split_visible_faces(
     block: int,
     chunk: int,
     tri_batch: int,
+    batching: str = "auto",
 ) -> tuple[jax.Array, jax.Array]:
     """Nearest face per pixel of ONE frame, its faces split over ``devices``.
 
@@ -132,12 +132,13 @@ def split_visible_faces(
         vertices: (V, 3) world positions.
         faces: (F, 3) int32 vertex indices.
         devices: the devices, from :func:`resolve_devices` (static).
-        cull_backfaces, block, chunk, tri_batch: as in
+        cull_backfaces, block, chunk, tri_batch, batching: as in
             :func:`jaxgfx._src.zbuffer.visible_faces` (static).
 
     Returns:
-        ``(inv_depth, face_id)``, each (1, H*W), bit-identical to ``visible_faces`` on
-        the stack of this one frame.
+        ``(inv_depth, face_id)``, each (H*W,), bit-identical to ``visible_faces``.
     """
-    fn = _split_fn(tuple(devices), bool(cull_backfaces), int(block), int(chunk), int(tri_batch))
+    fn = _split_fn(
+        tuple(devices), bool(cull_backfaces), int(block), int(chunk), int(tri_batch), batching
+    )
     return fn(cam, vertices, faces)

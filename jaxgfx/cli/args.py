@@ -11,19 +11,35 @@ so a bad path or an impossible size fails in well under a second instead of afte
 render.  The memory limit is half the machine's physical RAM (``os.sysconf``), 8 GiB
 where that is unknown; the estimates are deliberately rough upper bounds per pixel or
 per voxel, meant to refuse sizes that cannot work, not to budget exactly.
+
+Output paths are checked by creating a file where the output will go (and removing it),
+not by permission bits alone: root passes ``os.access`` everywhere, yet cannot write into
+``/sys`` or a read-only mount.  Input files are checked the same way before they are read
+(:func:`check_in_file`): a directory or an unreadable file is named as such.  Library
+errors raised while reading or validating the user's inputs become :class:`CliError`
+through :func:`input_errors`; a write that fails after the work (a full disk) becomes one
+line through :func:`writing` (:class:`OutputError`, exit 1).  Every other exception is a
+bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import re
-from collections.abc import Callable, Iterable, Sequence
+import tempfile
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 __all__ = [
     "CliError",
+    "OutputError",
+    "Interrupted",
+    "input_errors",
+    "writing",
+    "check_in_file",
     "parse_size",
     "parse_floats",
     "parse_ints",
@@ -49,6 +65,57 @@ id, the compositing copies and headroom); :func:`check_image` multiplies it by W
 
 class CliError(Exception):
     """A usage error found after parsing; printed as ``jaxgfx CMD: error: ...``, exit 2."""
+
+    exit_code = 2
+    label = "error"
+
+
+class OutputError(CliError):
+    """An output could not be written after the work was done (exit 1, one line)."""
+
+    exit_code = 1
+
+
+class Interrupted(CliError):
+    """Ctrl-C: printed as ``jaxgfx CMD: interrupted: ...`` with what is kept, exit 130."""
+
+    exit_code = 130
+    label = "interrupted"
+
+
+@contextlib.contextmanager
+def input_errors(what: str = "") -> Iterator[None]:
+    """Turns a ``ValueError``, ``TypeError`` or ``OSError`` raised inside into :class:`CliError`.
+
+    Wrap only the reading and validating of the user's inputs (a file, a camera): the
+    library's message then reaches the user as one line naming the input.  Errors from
+    anywhere else are bugs and must keep their traceback.
+
+    Args:
+        what: prefix naming the input (e.g. ``"--rig"``); empty when the library's message
+            already names it.
+    """
+    try:
+        yield
+    except (ValueError, TypeError, OSError) as exc:
+        text = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        if isinstance(exc, OSError) and exc.filename is not None:
+            text = f"{exc.filename}: {text}"
+        raise CliError(f"{what}: {text}" if what else text) from None
+
+
+@contextlib.contextmanager
+def writing(option: str, path: str | os.PathLike) -> Iterator[None]:
+    """Turns an ``OSError`` while writing the output ``path`` into one line (exit 1).
+
+    The paths were checked before the work (:func:`check_out_file`); this catches what
+    can still go wrong after it: a full disk, a folder removed meanwhile.
+    """
+    try:
+        yield
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        raise OutputError(f"{option} {str(path)!r}: could not write it: {why}") from None
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -187,6 +254,18 @@ def add_up_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _try_create(option: str, what: str, folder: Path) -> None:
+    """Creates and removes a file in ``folder``: the one test of writability that holds
+    for root, read-only mounts and pseudo file systems alike."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".jaxgfx-check-", dir=folder)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        raise CliError(f"{option} {what}: cannot create a file in {str(folder)!r}: {why}") from None
+    os.close(fd)
+    os.remove(tmp)
+
+
 def _check_parent(option: str, path: Path) -> None:
     parent = path.parent
     if not parent.exists():
@@ -195,14 +274,16 @@ def _check_parent(option: str, path: Path) -> None:
         raise CliError(f"{option} {str(path)!r}: {str(parent)!r} is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise CliError(f"{option} {str(path)!r}: directory {str(parent)!r} is not writable")
+    _try_create(option, repr(str(path)), parent)
 
 
 def check_out_file(option: str, path: str | os.PathLike, suffixes: Iterable[str]) -> Path:
     """Checks an output file before any work; returns it as a :class:`~pathlib.Path`.
 
     The suffix must be one of ``suffixes`` (lower case, with the dot: the file is written
-    in that format and no other), the path must not be a directory, and its parent
-    directory must exist and be writable.  Raises :class:`CliError` naming ``option``.
+    in that format and no other), the path must not be a directory, and a file must be
+    creatable in its parent directory (tried, then removed); an existing file must be
+    writable.  Raises :class:`CliError` naming ``option``.
     """
     p = Path(path)
     accepted = tuple(suffixes)
@@ -220,16 +301,43 @@ def check_out_file(option: str, path: str | os.PathLike, suffixes: Iterable[str]
 
 
 def check_out_dir(option: str, path: str | os.PathLike) -> Path:
-    """Checks an output directory before any work: an existing writable directory, or a new
-    one whose parent exists and is writable.  Raises :class:`CliError` naming ``option``."""
+    """Checks an output directory before any work: an existing directory a file can be
+    created in, or a new one whose parent exists and takes a new file.  Raises
+    :class:`CliError` naming ``option``."""
     p = Path(path)
     if p.exists():
         if not p.is_dir():
             raise CliError(f"{option} {str(p)!r} is a file, expected a directory")
         if not os.access(p, os.W_OK | os.X_OK):
             raise CliError(f"{option} {str(p)!r}: directory is not writable")
+        _try_create(option, repr(str(p)), p)
         return p
     _check_parent(option, p)
+    return p
+
+
+def check_in_file(option: str, path: str | os.PathLike, kind: str) -> Path:
+    """Checks an input file before any work: it exists, is a file and can be opened.
+
+    Args:
+        option: the argument's name in messages (``"mesh"``, ``"--rig"``).
+        path: the path the user gave.
+        kind: what was expected, e.g. ``"a mesh file (.ply, .obj, ...)"``.
+
+    Raises:
+        CliError: the path does not exist, is a directory or cannot be read; the message
+            names ``option``, the path and ``kind``.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise CliError(f"{option} {str(p)!r} is a directory, expected {kind}")
+    if not p.exists():
+        raise CliError(f"{option} {str(p)!r} not found")
+    try:
+        with open(p, "rb"):
+            pass
+    except OSError as exc:
+        raise CliError(f"{option} {str(p)!r} cannot be read: {exc.strerror or exc}") from None
     return p
 
 

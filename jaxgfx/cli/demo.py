@@ -12,6 +12,7 @@ from jaxgfx.cli.args import (
     check_out_dir,
     nonnegative_int,
     parse_size,
+    writing,
 )
 
 __all__ = ["register", "run"]
@@ -31,8 +32,8 @@ def register(subparsers) -> None:
     d.add_argument(
         "--data",
         default=None,
-        help="shared data folder with terrain/, voxlap/, rigs/ (default: $JAXGFX_DATA, else "
-        "../shared/data if present; without it the scene is procedural)",
+        help="shared data folder with terrain/, voxlap/, rigs/ (default: $JAXGFX_DATA; "
+        "without either the scene is procedural)",
     )
     d.add_argument(
         "--frames",
@@ -86,8 +87,9 @@ def run(args: argparse.Namespace) -> int:
     )
     share = [float(x) for x in np.asarray(coverage(frames))]
     cover = [dict(stage=n, share=f"{100 * x:.1f} %") for n, x in zip(names, share)]
-    save_png(out / "color.png", frame.color)
-    save_png(out / "depth.png", depth_image(frame.depth))
+    with writing("--out", out):
+        save_png(out / "color.png", frame.color)
+        save_png(out / "depth.png", depth_image(frame.depth))
     wrote = [out / "color.png", out / "depth.png"]
     if args.frames:
         # The character walks; the other passes' frames stay as they are.
@@ -96,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
             to_uint8(demo.composite(still + [demo.animate(demo.camera, k / args.frames)]).color)
             for k in range(args.frames)
         ]
-        with atomic_write(out / "demo.gif") as tmp:
+        with writing("--out", out), atomic_write(out / "demo.gif") as tmp:
             iio.imwrite(
                 tmp, np.stack([np.asarray(g) for g in gif]), extension=".gif", duration=110, loop=0
             )
@@ -115,21 +117,20 @@ def run(args: argparse.Namespace) -> int:
         + markdown_table(cover, ["stage", "share"])
         + "\n"
     )
-    with atomic_write(out / "timing.md") as tmp:
-        tmp.write_text(md)
-    save_json(
-        out / "timing.json",
-        dict(
-            size=[w, h],
-            scene=demo.description,
-            credits=list(demo.credits),
-            machine=mach,
-            stages=rows,
-            coverage=dict(zip(names, share)),
-        ),
-    )
-    print(md)
-    for c in demo.credits:
-        print(c)
+    with writing("--out", out):
+        with atomic_write(out / "timing.md") as tmp:
+            tmp.write_text(md)
+        save_json(
+            out / "timing.json",
+            dict(
+                size=[w, h],
+                scene=demo.description,
+                credits=list(demo.credits),
+                machine=mach,
+                stages=rows,
+                coverage=dict(zip(names, share)),
+            ),
+        )
+    print(md)  # with the data credits, once
     print("wrote " + ", ".join(str(p) for p in wrote + [out / "timing.md"]))
     return 0

@@ -28,8 +28,10 @@ from jaxgfx.cli.args import (
     check_image,
     check_memory,
     check_out_file,
+    input_errors,
     parse_size,
     positive_int,
+    writing,
 )
 from jaxgfx.cli.terrain import (
     INSIDE_BY_DEFAULT,
@@ -119,8 +121,9 @@ def default_path(terrain, function: str, half_width: int) -> tuple[np.ndarray, f
 
     A height map is crossed from south to north (towards row 0, like the ``terrain``
     view) along a gentle S-curve through the centre, over 76 % of its length, at a
-    quarter of its relief (at least 8 voxels) above the highest ground near the track,
-    looking ahead and 15 degrees down.  Other functions fly from their ``terrain``
+    quarter of its relief (at least 8 voxels, at most a quarter of ``half_width``: with
+    small boxes the ground stays inside them and the fog) above the highest ground
+    near the track, looking ahead and 15 degrees down.  Other functions fly from their ``terrain``
     view along its heading for one outer-box half-width, lifted where the track would
     pass within :data:`MARGIN` voxels of solid ground.
     """
@@ -128,13 +131,13 @@ def default_path(terrain, function: str, half_width: int) -> tuple[np.ndarray, f
 
     if isinstance(terrain, T.HeightmapTerrain):
         m = terrain.mapping
-        w, d = m.shape[1] * m.cell, m.shape[0] * m.cell
+        w, d = m.shape[1] * m.cells[0], m.shape[0] * m.cells[1]
         cx, cz = m.origin[0] + w / 2, m.origin[1] + d / 2
         t = np.linspace(0.0, 1.0, 65)
         x = cx + 0.12 * w * np.sin(2 * np.pi * t)
         z = cz + d * (0.38 - 0.76 * t)
         relief = float(np.max(np.asarray(terrain.heights)))
-        clearance = max(8.0, 0.25 * relief)
+        clearance = min(max(8.0, 0.25 * relief), max(MARGIN + 1.0, half_width / 4))
         step = float(np.hypot(np.diff(x), np.diff(z)).max())
         y = _heightmap_clear_y(terrain, x, z, max(4.0, step)) + clearance
         # a running max then a narrower running mean: smooth, and still >= each
@@ -378,7 +381,8 @@ def run(args) -> int:
     from jaxgfx import terrain as T
     from jaxgfx.io import atomic_write, save_json, save_png
 
-    terrain = terrain_from_args(args)
+    with input_errors():
+        terrain = terrain_from_args(args)
     if args.function not in VIEWS and not isinstance(terrain, T.HeightmapTerrain):
         raise CliError(f"--function {args.function!r} has no default view")
     if args.path is not None:
@@ -407,7 +411,7 @@ def run(args) -> int:
         fov=args.fov,
         height_range=color_heights(terrain, args.function),
         fog_distance=float(args.fog * reach(args)) if args.fog > 0 else None,
-        snow_line=snow_line(args),
+        snow_line=snow_line(args, terrain),
         wait=args.wait,
     )
     total_s = time.perf_counter() - t0
@@ -427,17 +431,19 @@ def run(args) -> int:
         reuse_pct_mean=round(float(np.mean(reuse)), 1) if reuse else None,
         total_s=round(total_s, 2),
     )
-    with atomic_write(out) as tmp:
+    with writing("--out", out), atomic_write(out) as tmp:
         if out.suffix.lower() == ".gif":
             iio.imwrite(tmp, frames, extension=".gif", duration=1000.0 / args.fps, loop=0)
         else:
             iio.imwrite(tmp, frames, extension=".mp4", fps=args.fps)
-    with atomic_write(md_path) as tmp:
-        tmp.write_text(_table_markdown(args, rows, summary))
-    save_json(js_path, dict(summary, rows=rows))
+    with writing("--out", md_path):
+        with atomic_write(md_path) as tmp:
+            tmp.write_text(_table_markdown(args, rows, summary))
+        save_json(js_path, dict(summary, rows=rows))
     summary.update(out=str(out), table=[str(md_path), str(js_path)])
     if args.still:
-        save_png(args.still, frames[len(frames) // 2])
+        with writing("--still", args.still):
+            save_png(args.still, frames[len(frames) // 2])
         summary["still"] = str(args.still)
     print(json.dumps(summary))
     return 0

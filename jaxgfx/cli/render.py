@@ -10,32 +10,53 @@ its mesh node's transform (for the Fox: a dot beside its stand).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
 from jaxgfx.cli.args import (
     PIXEL_BYTES,
     CliError,
+    Interrupted,
     add_up_argument,
     bounded_float,
     check_image,
+    check_in_file,
     check_memory,
     check_out_dir,
     check_out_file,
+    input_errors,
     parse_floats,
     parse_fov,
     parse_size,
     positive_int,
+    writing,
+)
+from jaxgfx.cli.framing import (
+    CHARACTER_VIEW,
+    MESH_VIEW,
+    camera_text,
+    framed_camera,
+    orbit_distance,
+    warn_if_unseen,
 )
 
 CHARACTER_COLOR = (0.85, 0.5, 0.25)
 """The skinned mesh of a ``.glb`` is drawn in this colour (textures are not read)."""
 
-__all__ = ["register", "run_render", "run_sweep", "contact_sheet"]
+MESH_KIND = "a mesh file (.ply, .obj, .glb, .gltf, .stl, .off)"
+
+SHEET_TILES = 48
+"""The contact sheet shows at most this many frames, evenly spaced over the sweep."""
+SHEET_SIDE = 2048
+"""The contact sheet's longer side is at most this many pixels (tiles are shrunk)."""
+
+__all__ = ["register", "run_render", "run_sweep", "contact_sheet", "sheet_layout"]
 
 
 def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float]:
@@ -44,21 +65,9 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     return 0.5 * (lo + hi), float(np.linalg.norm(hi - lo)) * 0.5 + 1e-6
 
 
-def _framing(vertices: np.ndarray, fov: float) -> tuple[np.ndarray, float]:
-    """Centre of the bounding box and the distance that frames it at ``fov`` degrees."""
-    center, radius = _bounds(vertices)
-    return center, radius / math.sin(math.radians(fov) / 2) * 1.1
-
-
-# Default view directions (from the target to the eye): meshes from the front and a little
-# above; characters three-quarter from the side (glTF characters face +z, so the front view
-# hides their length).
-_VIEW = (0.0, 0.35, 1.0)
-_CHARACTER_VIEW = (0.8, 0.4, 0.6)
-
-
-def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=_VIEW):
-    from jaxgfx.camera import camera_from_degrees, look_at
+def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=MESH_VIEW):
+    """``--camera`` if given, else the view along ``view`` that frames every vertex."""
+    from jaxgfx.camera import camera_from_degrees
 
     w, h = args.size
     if args.camera is not None:
@@ -67,9 +76,7 @@ def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=_VIEW):
         return camera_from_degrees(
             [x, y, z], yaw, pitch, 0.0, args.fov, w, h, radius * 1e-3, radius * 1e3
         )
-    center, dist = _framing(vertices, args.fov)
-    eye = center + dist * np.asarray(view) / np.linalg.norm(view)
-    return look_at(eye, center, args.fov, w, h, dist * 1e-3, dist * 10)
+    return framed_camera(vertices, view, args.fov, args.size)
 
 
 def _is_skinned_glb(path: str) -> bool:
@@ -91,7 +98,8 @@ def _skinned_scene(args: argparse.Namespace):
     from jaxgfx.io import up_rotation
     from jaxgfx.scene import merge_mesh_passes, mesh_pass
 
-    gskin = skin.load_gltf_skin(args.mesh)
+    with input_errors():
+        gskin = skin.load_gltf_skin(args.mesh)
     t = getattr(args, "time", None)  # sweep has no --time: the bind pose
     if t is None:
         local = gskin.rest_trs
@@ -108,10 +116,42 @@ def _skinned_scene(args: argparse.Namespace):
     rot = up_rotation(args.up).astype(np.float32)
     color = np.tile(np.asarray(CHARACTER_COLOR, np.float32), (len(gskin.vertices), 1))
     passes = [mesh_pass(np.asarray(pos) @ rot.T, gskin.faces, color, np.asarray(nrm) @ rot.T)]
-    for m in skin.load_gltf_meshes(args.mesh):
+    with input_errors():
+        props = skin.load_gltf_meshes(args.mesh)
+    for m in props:
         passes.append(mesh_pass(m.vertices @ rot.T, m.faces, m.colors))
     info = dict(skinned_vertices=len(gskin.vertices), time=t, props=len(passes) - 1)
     return merge_mesh_passes(passes), info
+
+
+def _load_mesh_pass(args: argparse.Namespace, skinned: bool | None = None):
+    """The mesh file as one :class:`MeshPass`, whether it is skinned (+ summary info)."""
+    from jaxgfx.io import load_mesh, mesh_arrays
+    from jaxgfx.scene import mesh_pass
+
+    check_in_file("mesh", args.mesh, MESH_KIND)
+    if skinned is None:
+        skinned = _is_skinned_glb(args.mesh)
+    if skinned:  # a glTF character, posed, with its props
+        mp, info = _skinned_scene(args)
+        return mp, info, True
+    with input_errors():
+        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
+    return mp, {}, False
+
+
+def _frame(cam, mp, cull: bool):
+    from jaxgfx.compose import background, composite
+    from jaxgfx.scene import render_mesh_pass
+
+    return composite([background(cam), render_mesh_pass(cam, mp, cull_backfaces=cull)])
+
+
+@functools.cache
+def _frame_jit():
+    import jax
+
+    return jax.jit(_frame, static_argnums=2)
 
 
 def run_render(args: argparse.Namespace) -> int:
@@ -119,45 +159,75 @@ def run_render(args: argparse.Namespace) -> int:
     out = check_out_file("--out", args.out, (".png",))
     depth = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
     check_image(args.size, PIXEL_BYTES)
+    check_in_file("mesh", args.mesh, MESH_KIND)
     skinned = _is_skinned_glb(args.mesh)
     if args.time is not None and not skinned:
         raise CliError(f"--time applies to a .glb with a skinned mesh, not {args.mesh}")
 
     import jax
 
-    from jaxgfx.compose import background, composite
-    from jaxgfx.io import load_mesh, mesh_arrays, save_npy, save_png
-    from jaxgfx.scene import mesh_pass, render_mesh_pass
+    from jaxgfx.io import save_npy, save_png
 
-    info: dict = {}
-    if skinned:
-        mp, info = _skinned_scene(args)
-    else:
-        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
+    mp, info, skinned = _load_mesh_pass(args, skinned)
     v, f = np.asarray(mp.vertices), np.asarray(mp.faces)
-    cam = _camera_for(v, args, _CHARACTER_VIEW if skinned else _VIEW)
-    fn = jax.jit(
-        lambda cam, mp: composite(
-            [background(cam), render_mesh_pass(cam, mp, cull_backfaces=args.cull)]
-        )
-    )
+    cam = _camera_for(v, args, CHARACTER_VIEW if skinned else MESH_VIEW)
     t0 = time.perf_counter()
-    frame = jax.block_until_ready(fn(cam, mp))
+    frame = jax.block_until_ready(_frame_jit()(cam, mp, bool(args.cull)))
     dt = time.perf_counter() - t0
-    save_png(out, frame.color)
+    d = np.asarray(frame.depth)
+    with writing("--out", out):
+        save_png(out, frame.color)
     if depth is not None:
-        save_npy(depth, np.asarray(frame.depth))
-    cov = float(np.isfinite(np.asarray(frame.depth)).mean())
-    summary = dict(out=str(args.out), triangles=len(f), seconds=round(dt, 3), coverage=cov)
+        with writing("--depth", depth):
+            save_npy(depth, d)
+    hits = int(np.isfinite(d).sum())
+    warn_if_unseen("render", cam, v, hits, f"mesh {args.mesh!r}", faces=f, fov=args.fov)
+    summary = dict(
+        out=str(args.out),
+        triangles=len(f),
+        camera=camera_text(cam),
+        seconds=round(dt, 3),
+        coverage=hits / d.size,
+    )
     print(json.dumps({**summary, **info}))
     return 0
 
 
-def contact_sheet(images: np.ndarray, cols: int) -> np.ndarray:
-    """Tiles (N, H, W, 3) uint8 images into one grid image."""
+def sheet_layout(n: int, size: tuple[int, int]) -> tuple[list[int], int, int]:
+    """Which frames the contact sheet shows, its columns and the tiles' shrink factor.
+
+    At most :data:`SHEET_TILES` frames, evenly spaced from the first to the last, in up to
+    6 columns; tiles are shrunk by a whole factor until the sheet's longer side is at most
+    :data:`SHEET_SIDE` pixels.
+
+    Args:
+        n: frames in the sweep.
+        size: (W, H) of a frame.
+
+    Returns:
+        ``(frame indices, columns, shrink factor)``.
+    """
+    picks = sorted({round(k * (n - 1) / (SHEET_TILES - 1)) for k in range(SHEET_TILES)})
+    picks = list(range(n)) if n <= SHEET_TILES else picks
+    cols = min(len(picks), 6)
+    rows = -(-len(picks) // cols)
+    w, h = size
+    shrink = max(1, -(-max(cols * w, rows * h) // SHEET_SIDE))
+    return picks, cols, shrink
+
+
+def contact_sheet(images: np.ndarray, cols: int, shrink: int = 1) -> np.ndarray:
+    """Tiles (N, H, W, 3) uint8 images into one grid image, each shrunk ``shrink`` times
+    (box average; a partial last row or column of pixels is dropped)."""
     n, h, w, ch = images.shape
+    if shrink > 1:
+        hs, ws = h // shrink, w // shrink
+        cut = images[:, : hs * shrink, : ws * shrink].astype(np.float32)
+        images = cut.reshape(n, hs, shrink, ws, shrink, ch).mean(axis=(2, 4))
+        images = (images + 0.5).astype(np.uint8)
+        h, w = hs, ws
     rows = -(-n // cols)
-    sheet = np.zeros((rows * h, cols * w, ch), images.dtype)
+    sheet = np.zeros((rows * h, cols * w, ch), np.uint8)
     for i in range(n):
         r, c = divmod(i, cols)
         sheet[r * h : (r + 1) * h, c * w : (c + 1) * w] = images[i]
@@ -180,55 +250,92 @@ def _sweep_devices(wanted: int | None) -> list:
     return devs[:wanted]
 
 
+FRAME_PATTERN = "../frame_{i:05d}.png"
+"""Where ``jaxgfx sweep`` stores each frame's colour, relative to ``OUT/chunks``."""
+
+
+def _frames_kept(out: Path, n: int) -> int:
+    """Frames of a sweep whose chunks are complete in ``out`` (what a resume skips)."""
+    chunks = out / "chunks"
+    try:
+        manifest = json.loads((chunks / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return 0
+    size = int(manifest.get("chunk_size", 1))
+    done = sum(
+        min(size, n - k * size)
+        for k in range(int(manifest.get("n_chunks", 0)))
+        if (chunks / f"chunk_{k:05d}.npz").is_file()
+    )
+    return min(done, n)
+
+
 def run_sweep(args: argparse.Namespace) -> int:
-    """Orbits ``--n`` cameras around a mesh, chunk by chunk (resumable); writes frames + sheet."""
+    """Orbits ``--n`` cameras around a mesh, chunk by chunk (resumable); writes frames + sheet.
+
+    Each frame's colour is stored as ``OUT/frame_XXXXX.png`` and its depth, compressed, in
+    ``OUT/chunks``; Ctrl-C keeps every finished chunk and says how to resume.
+    """
     from jaxgfx.camera import orbit_cameras
-    from jaxgfx.compose import background, composite, to_uint8
-    from jaxgfx.io import load_mesh, mesh_arrays, save_png
-    from jaxgfx.scene import mesh_pass, render_mesh_pass
-    from jaxgfx.sweep import SweepMismatch, load_sweep, run_sweep
+    from jaxgfx.compose import to_uint8
+    from jaxgfx.io import save_png
+    from jaxgfx.sweep import SweepMismatch, image_path, run_sweep
 
     if args.n <= 0:
         raise CliError(f"--n must be positive, got {args.n}")
     out = check_out_dir("--out", args.out)
+    check_in_file("mesh", args.mesh, MESH_KIND)
     devices = _sweep_devices(args.devices)
     w, h = args.size
-    # a chunk of frames in flight, plus every frame's colour + depth for the contact sheet
-    need = float(w) * h * (min(args.chunk, args.n) * PIXEL_BYTES + args.n * 8)
-    check_memory("--size", f"{w}x{h} (with --n {args.n}, --chunk {args.chunk})", need)
-    if _is_skinned_glb(args.mesh):  # a glTF character at its bind pose, with its props
-        mp, _ = _skinned_scene(args)
-    else:
-        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
-    center, dist = _framing(np.asarray(mp.vertices), args.fov)
+    # a chunk of frames in flight, plus the contact sheet's frames
+    need = float(w) * h * (min(args.chunk, args.n) * PIXEL_BYTES + SHEET_TILES * 3)
+    check_memory("--size", f"{w}x{h} (with --chunk {args.chunk})", need)
+    mp, _, _ = _load_mesh_pass(args)  # a skinned glTF character at its bind pose
+    v = np.asarray(mp.vertices, np.float64)
+    center, _ = _bounds(v)
+    # the sphere about the box's centre through the farthest vertex: seen from any side of
+    # the orbit, every vertex stays inside it
+    radius = float(np.linalg.norm(v - center, axis=1).max()) + 1e-6
+    dist = orbit_distance(radius, args.fov, args.size)
     cams = orbit_cameras(
         center, dist, args.n, args.elevation, args.fov, w, h, dist * 1e-3, dist * 10
     )
 
     def render_one(cam):
-        fr = composite([background(cam), render_mesh_pass(cam, mp)])
+        fr = _frame(cam, mp, False)
         return {"color": to_uint8(fr.color), "depth": fr.depth}
-
-    def write_frames(k, start, outputs):
-        for i, img in enumerate(outputs["color"]):
-            p = out / f"frame_{start + i:05d}.png"
-            if not p.exists():
-                save_png(p, img)
 
     t0 = time.perf_counter()
     try:
-        summary = run_sweep(
-            render_one, cams, out / "chunks", args.chunk, devices=devices, on_chunk=write_frames
-        )
+        with writing("--out", out):
+            summary = run_sweep(
+                render_one,
+                cams,
+                out / "chunks",
+                args.chunk,
+                devices=devices,
+                images={"color": FRAME_PATTERN},
+            )
     except SweepMismatch as exc:  # the frames beside the chunks are stale too
         raise CliError(
             f"--out {out} holds a different sweep: {exc.parts}. To start over, delete {out} "
             "or choose another --out"
         ) from None
+    except KeyboardInterrupt:
+        kept = _frames_kept(out, args.n)
+        raise Interrupted(
+            f"{kept} of {args.n} frames are kept in {out}; run the same command again to "
+            "render the rest"
+        ) from None
     summary["seconds"] = round(time.perf_counter() - t0, 3)
-    allv = load_sweep(out / "chunks")
-    save_png(out / "contact_sheet.png", contact_sheet(allv["color"], min(args.n, 6)))
+    import imageio.v3 as iio
+
+    picks, cols, shrink = sheet_layout(args.n, args.size)
+    tiles = np.stack([iio.imread(image_path(out / "chunks", FRAME_PATTERN, i)) for i in picks])
+    with writing("--out", out / "contact_sheet.png"):
+        save_png(out / "contact_sheet.png", contact_sheet(tiles, cols, shrink))
     summary["frames"] = args.n
+    summary["bytes"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     print(json.dumps(summary))
     return 0
 

@@ -21,11 +21,19 @@ from jaxgfx.cli.args import (
     CliError,
     bounded_float,
     check_image,
+    check_in_file,
     check_out_dir,
+    check_out_file,
+    input_errors,
     parse_size,
+    writing,
 )
+from jaxgfx.cli.framing import ARM_VIEW, CHARACTER_VIEW, framed_camera, warn_if_unseen
 
 __all__ = ["register", "run"]
+
+FOV = 45.0
+"""Vertical field of view of the skinned body's view, degrees."""
 
 # One full turn either way: enough for any pose, and far from float32 trouble.
 _ANGLE = bounded_float(-360.0, 360.0)
@@ -81,7 +89,12 @@ def register(subparsers) -> None:
         "spline (default: b_Tail01,b_Tail02,b_Tail03)",
     )
     p.add_argument("--size", type=parse_size, default=(320, 320), help="WxH (default 320x320)")
-    p.add_argument("--out", default="skin_out", help="output directory")
+    p.add_argument("--out", default="skin_out", help="output directory (writes skin.png)")
+    p.add_argument(
+        "--depth",
+        default=None,
+        help="also write camera-space depth (+inf = empty) to this .npy",
+    )
     p.set_defaults(func=run)
 
 
@@ -100,8 +113,9 @@ def _check_args(args) -> str:
                 raise CliError(f"--{opt} poses the demo arm; with --rig use --time")
         if args.chain is not None and args.method != "spline":
             raise CliError(f"--chain: --method {args.method} skins every joint, no spline")
-        if not os.path.isfile(args.rig):
+        if not os.path.exists(args.rig):
             raise CliError(f"--rig: no such file {args.rig!r}")
+        check_in_file("--rig", args.rig, "a binary glTF (.glb)")
         if not args.rig.lower().endswith(".glb"):
             raise CliError(f"--rig {args.rig!r}: expected a binary glTF (.glb)")
     return style
@@ -113,7 +127,8 @@ def _rig_mesh(args, style_name: str):
 
     from jaxgfx import skin
 
-    gskin = skin.load_gltf_skin(args.rig)
+    with input_errors("--rig"):
+        gskin = skin.load_gltf_skin(args.rig)
     if args.time is not None and gskin.duration <= 0:
         raise CliError(f"--time {args.time:g}: {args.rig} has no animation")
     if args.time is not None and args.time > gskin.duration:
@@ -155,7 +170,7 @@ def _arm_mesh(args, style_name: str):
     rig, binding = arm.rig, arm.binding
     bend = 90.0 if args.bend is None else args.bend
     twist = 0.0 if args.twist is None else args.twist
-    pose = skin.demo_arm_pose(rig, math.radians(bend), math.radians(twist))
+    pose = skin.demo_arm_pose(rig, math.radians(bend), math.radians(twist))  # takes radians
     style = skin.muscle_style() if style_name == "muscle" else None
     styles = "none" if style is None else "both"
 
@@ -172,20 +187,19 @@ def _arm_mesh(args, style_name: str):
 
 
 def run(args) -> int:
-    """Handler: writes ``skin.png`` and prints the deformation time."""
+    """Handler: writes ``skin.png`` (and ``--depth``) and prints the deformation time."""
     out_dir = check_out_dir("--out", args.out)
+    depth_path = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
     check_image(args.size, PIXEL_BYTES)
     style_name = _check_args(args)
 
     import jax
     import jax.numpy as jnp
 
-    from jaxgfx.camera import look_at
     from jaxgfx.compose import lambert
-    from jaxgfx.io import save_png
+    from jaxgfx.io import save_npy, save_png
     from jaxgfx.raster import rasterize
 
-    w, h = args.size
     deform, inputs, faces = (_rig_mesh if args.rig else _arm_mesh)(args, style_name)
     t0 = time.perf_counter()
     pos, nrm = jax.block_until_ready(deform(*inputs))
@@ -194,25 +208,21 @@ def run(args) -> int:
     pos, nrm = jax.block_until_ready(deform(*inputs))
     steady = time.perf_counter() - t0
     p = np.asarray(pos)
-    if args.rig:
-        # three-quarter side view framing the bounding sphere (glTF characters face +z)
-        lo, hi = p.min(0), p.max(0)
-        centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2 + 1e-6
-        # the sphere is loose around a long body: 0.8 of the distance that fits it in the
-        # narrower of the two fields of view still shows the whole character
-        half = min(math.radians(22.5), math.atan(math.tan(math.radians(22.5)) * w / h))
-        dist = radius / math.sin(half) * 0.8
-        view = np.array([0.8, 0.35, 0.5]) / np.linalg.norm([0.8, 0.35, 0.5])
-        cam = look_at(centre + dist * view, centre, 45.0, w, h, dist * 1e-3, dist * 10)
-    else:
-        centre = p.mean(0)
-        cam = look_at(centre + np.array([4.0, 0.6, 0.0]), centre, 45.0, w, h, 0.05, 50.0)
+    # Every vertex of the posed body inside the frame: three-quarter from the side for a
+    # glTF character (they face +z), from the side for the arm (its bend shows).
+    cam = framed_camera(p, CHARACTER_VIEW if args.rig else ARM_VIEW, FOV, args.size)
     out = jax.jit(rasterize)(cam, pos, jnp.asarray(faces), nrm)
     albedo = jnp.broadcast_to(jnp.array([0.85, 0.6, 0.45]), out.color.shape)
     img = jnp.where((out.tri_id >= 0)[..., None], lambert(out.color, albedo), 1.0)
     path = out_dir / "skin.png"
-    save_png(path, np.asarray(img))
+    with writing("--out", path):
+        save_png(path, np.asarray(img))
+    depth = np.asarray(out.depth)
+    if depth_path is not None:
+        with writing("--depth", depth_path):
+            save_npy(depth_path, depth)
     what = args.rig or "demo arm"
+    warn_if_unseen("skin", cam, p, int(np.isfinite(depth).sum()), repr(what), faces=faces)
     print(
         f"{args.method} (style {style_name}) of {what}: {len(p)} vertices, first call "
         f"{first:.3f} s, steady {steady * 1e3:.3f} ms; wrote {path}"

@@ -14,12 +14,14 @@ from jaxgfx.cli.args import (
     bounded_float,
     check_memory,
     check_out_file,
+    input_errors,
     nonnegative_int,
     parse_floats,
     parse_fov,
     parse_ints,
     parse_size,
     positive_int,
+    writing,
 )
 
 __all__ = [
@@ -35,6 +37,8 @@ __all__ = [
 
 FUNCTIONS = ("csg", "xor", "saw", "sin", "heightmap:PATH")
 MESH_SUFFIXES = (".ply", ".glb", ".obj", ".stl", ".off")
+IMAGE_RELIEF_TEXT = "1/8"
+"""jaxgfx.terrain.IMAGE_RELIEF in words (the help text is built without importing JAX)."""
 VOXEL_BYTES = 64
 """Rough upper bound of the bytes one Clip-Box voxel costs (density, meshing, smoothing)."""
 
@@ -98,8 +102,9 @@ def make_terrain(
 ):
     """Terrain from a ``--function`` value: csg, xor, saw, sin or heightmap:PATH.
 
-    A height map is placed by :func:`jaxgfx.terrain.heightmap_terrain`: centred on the
-    world origin, true proportions from a DEM's header, edges clamped unless ``wrap``.
+    A height map (GeoTIFF, SRTM .hgt, ESRI .asc, USGS .dem, image, .npy) is placed by
+    :func:`jaxgfx.terrain.heightmap_terrain`: centred on the world origin, true
+    proportions where the file gives units, a flat apron around it unless ``wrap``.
     """
     import jax
 
@@ -150,7 +155,9 @@ def best_yaw(terrain, viewer, reach: float) -> float:
     from jaxgfx import terrain as T
 
     m = terrain.mapping
-    dist = np.linspace(0.05, 1.0, 32) * min(reach, max(m.shape) * m.cell / 2)
+    dist = np.linspace(0.05, 1.0, 32) * min(
+        reach, max(m.shape[1] * m.cells[0], m.shape[0] * m.cells[1]) / 2
+    )
     spread = np.linspace(-np.pi / 6, np.pi / 6, 9)
     score = {}
     for yaw in range(0, 360, 45):
@@ -180,13 +187,15 @@ def parse_snow_line(text: str) -> float | str | None:
     return value
 
 
-def snow_line(args) -> float | None:
-    """--snow-line, or the default: 0.8 of the relief, none for images (no altitude)."""
+def snow_line(args, terrain=None) -> float | None:
+    """--snow-line, or the default: 0.8 of the relief, none for height maps without units
+    (images, arrays: no altitude)."""
     if args.snow_line != "auto":
         return float(args.snow_line) if args.snow_line is not None else None
-    spec = args.function
-    image = spec.startswith("heightmap:") and not spec.lower().endswith(".dem")
-    return None if image else 0.8
+    mapping = getattr(terrain, "mapping", None)
+    if mapping is not None and getattr(mapping, "metres_per_sample", None) is None:
+        return None
+    return 0.8
 
 
 def color_heights(terrain, function: str) -> tuple[float, float]:
@@ -230,7 +239,8 @@ def run(args) -> int:
     from jaxgfx.io import save_mesh, save_npy, save_png
     from jaxgfx.raster import rasterize
 
-    terrain = terrain_from_args(args)
+    with input_errors():
+        terrain = terrain_from_args(args)
     viewer, (yaw, pitch), heights = _view(args, terrain)
     if not (args.viewer is None and args.function in INSIDE_BY_DEFAULT):
         try:
@@ -256,12 +266,13 @@ def run(args) -> int:
         viewer,
         height_range=heights,
         fog_distance=float(args.fog * reach) if args.fog > 0 else None,
-        snow_line=snow_line(args),
+        snow_line=snow_line(args, terrain),
         rasterize_fn=jax.jit(rasterize),
     )
     jax.block_until_ready(frame)
     render_s = time.perf_counter() - t0
-    save_png(args.out, frame.color)
+    with writing("--out", args.out):
+        save_png(args.out, frame.color)
     report = {"function": args.function}
     if isinstance(terrain, T.HeightmapTerrain):
         report.update(terrain.mapping.to_dict())
@@ -274,11 +285,13 @@ def run(args) -> int:
         out=str(args.out),
     )
     if args.depth:
-        save_npy(args.depth, np.asarray(frame.depth))
+        with writing("--depth", args.depth):
+            save_npy(args.depth, np.asarray(frame.depth))
         report["depth"] = str(args.depth)
     if args.mesh:
         mesh = T.mesh_to_trimesh(levels, viewer, level=args.mesh_level)
-        save_mesh(args.mesh, mesh.vertices, mesh.faces)
+        with writing("--mesh", args.mesh):
+            save_mesh(args.mesh, mesh.vertices, mesh.faces)
         report.update(mesh=str(args.mesh), mesh_triangles=len(mesh.faces))
     print(json.dumps(report))
     return 0
@@ -288,7 +301,13 @@ def add_source_arguments(p) -> None:
     """The terrain-source, Clip-Box and shading options ``terrain`` and ``flythrough`` share:
     --function (with --seed, --vertical-scale, --cell, --wrap), --resolution, --levels,
     --smoothing, --fov, --snow-line and --fog; check them with :func:`check_source_args`."""
-    p.add_argument("--function", default="csg", help=f"one of {', '.join(FUNCTIONS)}")
+    p.add_argument(
+        "--function",
+        default="csg",
+        help=f"one of {', '.join(FUNCTIONS)}; PATH is an elevation file (GeoTIFF .tif, SRTM "
+        ".hgt named like N46W123.hgt, ESRI ASCII .asc, USGS .dem: true proportions) or a "
+        "height image / .npy array (no units)",
+    )
     p.add_argument(
         "--resolution", type=positive_int, default=64, help="N voxels per box edge (multiple of 8)"
     )
@@ -304,18 +323,22 @@ def add_source_arguments(p) -> None:
         "--vertical-scale",
         type=bounded_float(0.0, math.inf, open_interval=True),
         default=None,
-        help="heightmap voxels per height unit (default: true DEM proportions; cell for images)",
+        help="heightmap voxels per height unit (default: true proportions for elevation "
+        "files; for images and .npy arrays, whose values carry no unit, the map's value "
+        f"range becomes a relief of {IMAGE_RELIEF_TEXT} of its longer side, whatever the "
+        "bit depth)",
     )
     p.add_argument(
         "--cell",
         type=bounded_float(0.0, math.inf, open_interval=True),
         default=None,
-        help="heightmap voxels per pixel (default 1)",
+        help="heightmap voxels per sample along x (default 1; z follows the file's sample spacing)",
     )
     p.add_argument(
         "--wrap",
         action="store_true",
-        help="tile the heightmap (default: its edge samples extend outwards)",
+        help="tile the heightmap (default: beyond the map its edge fades into a flat "
+        "apron at its border's median height)",
     )
     p.add_argument(
         "--snow-line",
@@ -342,9 +365,11 @@ def register(subparsers) -> None:
             "Samples a terrain function around an integer viewer into nested Clip-Boxes, "
             "converts them to welded, smoothed meshes and renders them shaded by slope and "
             "height, with fog to the horizon and a sky.  Prints one JSON line: for a height "
-            "map the mapping (sample (r, c) with value v stands at x = origin_x + (c + 0.5) "
-            "cell, z = origin_z + (r + 0.5) cell, y = base + (v - min) vertical_scale), "
-            "the viewer, the camera, triangles and timings."
+            "map the mapping (sample (r, c) with value v stands at x = origin_x + "
+            "(c + 0.5) cell[0], z = origin_z + (r + 0.5) cell[1], y = base + (v - min) "
+            "vertical_scale) and its scale (metres_per_sample [x, z] read from the file, "
+            "metres_per_voxel [x, y, z] of the terrain built), the viewer, the camera, "
+            "triangles and timings."
         ),
     )
     p.add_argument(

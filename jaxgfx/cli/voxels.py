@@ -1,6 +1,7 @@
 """``jaxgfx voxelize`` and ``jaxgfx render-voxels`` (thesis chapter 4).
 
-Conventions: scene coordinates are voxel units, y up.  A voxelized mesh of
+Conventions: scene coordinates are voxel units, y up, the subject's front towards
++z (where the default ``render-voxels`` camera stands).  A voxelized mesh of
 resolution R occupies [0, R) on its longest axis with its lowest voxel at
 y = 0.  Cameras take yaw in degrees about +y (0 looks along +z) and pitch in
 degrees (positive looks up).  Depth files hold the distance along the view
@@ -9,6 +10,7 @@ axis in voxel units, +inf where nothing was hit.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import sys
@@ -19,8 +21,10 @@ from jaxgfx.cli.args import (
     CliError,
     bounded_float,
     check_image,
+    check_in_file,
     check_memory,
     check_out_file,
+    input_errors,
     memory_limit,
     nonnegative_int,
     parse_aa,
@@ -28,16 +32,87 @@ from jaxgfx.cli.args import (
     parse_fov,
     parse_size,
     positive_int,
+    writing,
 )
+from jaxgfx.cli.framing import VOXEL_VIEW, camera_text, framed_camera, warn_if_unseen
 
-__all__ = ["register", "run_voxelize", "run_render_voxels", "load_input"]
+__all__ = ["register", "run_voxelize", "run_render_voxels", "load_input", "face_front"]
 
 UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 """``voxelize --up`` values: a mesh's up axis (x, y, z) or a volume's (any sign)."""
+FRONT_AXES = ("x", "y", "z", "-x", "-y", "-z")
+"""``voxelize --front`` values: the file's axis that points out of the subject's front."""
+VOLUME_FRONT = "-y"
+"""A volume's front by default: the patient coordinates of DICOM and NRRD (LPS: x to the
+patient's left, y to the back, z up) put the face towards -y."""
+MESH_FRONT = "z"
+"""A mesh's front by default: +z, where glTF models and most scans face."""
+MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+
+
+def _formats() -> str:
+    """Every input ``voxelize`` reads, in words (for an unsupported suffix)."""
+    from jaxgfx._src.voxel.formats import SIMPLEITK_SUFFIXES, VOLUME_SUFFIXES
+
+    return (
+        f"meshes ({', '.join(MESH_SUFFIXES)}), volumes ({', '.join(VOLUME_SUFFIXES)}; "
+        f"{', '.join(SIMPLEITK_SUFFIXES)} with jaxgfx[volumes]), Voxlap worlds and sprites "
+        "(.vxl, .kv6), or the word 'tree'"
+    )
+
+
+def _axis_vector(axis: str):
+    import numpy as np
+
+    v = np.zeros(3)
+    v["xyz".index(axis[-1])] = -1.0 if axis.startswith("-") else 1.0
+    return v
+
+
+def face_front(coords, shape, front_world):
+    """Turns voxels about +y so that the world direction ``front_world`` points to +z.
+
+    Args:
+        coords: (N, 3) integer voxel coordinates in a grid of ``shape``.
+        shape: (X, Y, Z).
+        front_world: (3,) axis-aligned direction (+-x or +-z) of the subject's front.
+
+    Returns:
+        ``(coords, shape)`` after the quarter or half turn (a rotation, not a mirror).
+    """
+    import numpy as np
+
+    c = np.asarray(coords, np.int64)
+    X, Y, Z = shape
+    fx, _, fz = (int(round(v)) for v in front_world)
+    if fz == 1:
+        return c, (X, Y, Z)
+    if fz == -1:  # half turn
+        return np.stack([X - 1 - c[:, 0], c[:, 1], Z - 1 - c[:, 2]], 1), (X, Y, Z)
+    if fx == 1:  # x -> z, z -> -x
+        return np.stack([Z - 1 - c[:, 2], c[:, 1], c[:, 0]], 1), (Z, Y, X)
+    # -x -> z, z -> x
+    return np.stack([c[:, 2], c[:, 1], X - 1 - c[:, 0]], 1), (Z, Y, X)
+
+
+def _front_in_world(front: str, up: str, is_volume: bool):
+    """Where the file's ``front`` axis points after ``up`` was turned to +y."""
+    import numpy as np
+
+    if is_volume:
+        from jaxgfx._src.voxel.volume import turn_up
+
+        probe = np.zeros((3, 3, 3))
+        probe[tuple(1 + _axis_vector(front).astype(int))] = 1.0
+        return np.argwhere(turn_up(probe, up))[0] - 1.0
+    from jaxgfx.io import up_rotation
+
+    return up_rotation(up) @ _axis_vector(front)
+
 
 _CONVENTIONS = (
-    "Scene coordinates are voxel units, y up; a voxelized mesh of resolution R occupies "
-    "[0, R) on its longest axis with its lowest voxel at y = 0."
+    "Scene coordinates are voxel units, y up, the subject's front towards +z; a voxelized "
+    "mesh of resolution R occupies [0, R) on its longest axis with its lowest voxel at y = 0."
 )
 
 
@@ -65,6 +140,7 @@ def load_input(
     seed: int = 0,
     up: str | None = None,
     report: dict | None = None,
+    front: str | None = None,
 ):
     """Reads any supported input as surface :class:`~jaxgfx.raycast.Voxels`.
 
@@ -73,8 +149,15 @@ def load_input(
     spacing, or the longest physical axis split into ``resolution`` voxels; the
     iso value defaults to Otsu's threshold.  Meshes without vertex colours get one
     clay colour.  ``up`` is the file's up axis (meshes: x, y or z, default y;
-    volumes: also -x, -y, -z, default z, the slice axis of a scan).  For a volume,
-    ``report`` (a dict) receives the ``iso`` value used and the file's ``spacing``.
+    volumes: also -x, -y, -z, default z, the slice axis of a scan).  ``front`` is the
+    file's axis out of the subject's front (default :data:`VOLUME_FRONT` for volumes,
+    :data:`MESH_FRONT` for meshes); the result is turned about y so that it faces +z,
+    where ``render-voxels`` looks from by default.  For a volume, ``report`` (a dict)
+    receives the ``iso`` value used and the file's ``spacing``.
+
+    Raises:
+        CliError: the input is missing, a directory, of an unknown format, or cannot be
+            read; or an option does not apply to it.
     """
     import jax
     import numpy as np
@@ -84,18 +167,36 @@ def load_input(
     p = Path(path)
     ext = p.suffix.lower()
     is_volume = bool(V.volume_suffix(p))
-    if up is not None and (ext in (".vxl", ".kv6") or path == "tree"):
+    fixed = ext in (".vxl", ".kv6") or path == "tree"
+    if up is not None and fixed:
         raise CliError(f"--up applies to meshes and volumes, not to {path}")
+    if front is not None and fixed:
+        raise CliError(f"--front applies to meshes and volumes, not to {path}")
     if up is not None and up.startswith("-") and not is_volume:
         raise CliError(f"--up {up}: meshes take x, y or z")
-    if ext in (".vxl", ".kv6"):
-        if resolution is not None:
-            raise ValueError(
-                f"--resolution applies to meshes, trees and volumes, not to {ext} files"
+    if ext in (".vxl", ".kv6") and resolution is not None:
+        raise CliError(f"--resolution applies to meshes, trees and volumes, not to {ext} files")
+    if path != "tree":
+        check_in_file("input", path, f"one of {_formats()}")
+        if not (fixed or is_volume or ext in MESH_SUFFIXES):
+            got = repr(ext) if ext else "no suffix"
+            raise CliError(f"input {path!r} has {got}; voxelize reads {_formats()}")
+    if resolution is None and not (is_volume or ext in (".vxl", ".kv6")):
+        raise CliError("--resolution is required for meshes and trees")
+    up_axis = up or ("z" if is_volume else "y")
+    front_axis = front or (VOLUME_FRONT if is_volume else MESH_FRONT)
+    if not fixed:
+        facing = _front_in_world(front_axis, up_axis, is_volume)
+        if abs(facing[1]) > 0.5:
+            raise CliError(
+                f"--front {front_axis} is the --up axis ({up_axis}); name a horizontal axis"
             )
-        return V.load_vxl(str(p)) if ext == ".vxl" else V.load_kv6(str(p))
+    if ext in (".vxl", ".kv6"):
+        with input_errors():
+            return V.load_vxl(str(p)) if ext == ".vxl" else V.load_kv6(str(p))
     if is_volume:
-        vol, spacing = V.load_volume(str(p))
+        with input_errors():
+            vol, spacing = V.load_volume(str(p))
         shape = V.isotropic_shape(vol.shape, spacing, resolution)
         # Resampling holds the float32 volume and its colours: about 8 bytes a voxel.
         need = math.prod(shape) * VOXEL_BYTES
@@ -115,21 +216,26 @@ def load_input(
         if report is not None:
             report.update(iso=round(float(iso), 4), spacing=[float(v) for v in spacing])
         # By default volume z (the slice axis of a scan) becomes world y.
-        return V.volume_to_voxels(
-            vol, iso, up_axis=up or "z", spacing=spacing, resolution=resolution
-        )
-    if resolution is None:
-        raise ValueError("--resolution is required for meshes and trees")
+        vox = V.volume_to_voxels(vol, iso, up_axis=up_axis, spacing=spacing, resolution=resolution)
+        coords, shape = face_front(vox.coords, vox.shape, facing)
+        return V.make_voxels(coords, vox.colors, shape)
+    assert resolution is not None  # required for meshes and trees (checked above)
     if path == "tree":
         return V.procedural_tree(resolution, key=jax.random.key(seed))
     from jaxgfx.io import load_mesh
 
-    mesh = load_mesh(p, up=up or "y")
+    with input_errors():
+        mesh = load_mesh(p, up=up_axis)
     colors = None
     visual = getattr(mesh, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
         colors = np.asarray(visual.vertex_colors)[:, :3]
-    return V.voxelize_mesh(mesh.vertices, mesh.faces, resolution, vertex_colors=colors)
+    vertices = np.asarray(mesh.vertices)
+    if facing[2] < 0.5:  # turn the front to +z: a quarter or half turn about y
+        a = math.atan2(facing[0], facing[2])
+        c, sn = round(math.cos(a)), round(math.sin(a))
+        vertices = vertices @ np.array([[c, 0, -sn], [0, 1, 0], [sn, 0, c]], float).T
+    return V.voxelize_mesh(vertices, mesh.faces, resolution, vertex_colors=colors)
 
 
 def run_voxelize(args) -> int:
@@ -144,11 +250,14 @@ def run_voxelize(args) -> int:
 
     t0 = time.perf_counter()
     volume: dict = {}
-    vox = load_input(args.input, args.resolution, args.iso, args.seed, args.up, volume)
+    vox = load_input(
+        args.input, args.resolution, args.iso, args.seed, args.up, volume, front=args.front
+    )
     check_levels(args.levels, max(vox.shape), "largest grid axis")
     rle = V.encode_rle(vox, levels=args.levels)
     st = V.rle_stats(rle)
-    V.save_scene(str(out), vox)
+    with writing("--out", out):
+        V.save_scene(str(out), vox)
     line = dict(
         input=str(args.input),
         shape=list(vox.shape),
@@ -168,35 +277,22 @@ def run_voxelize(args) -> int:
     return 0
 
 
-def frame_voxels(vox, fov: float, width: int, height: int) -> list[float]:
-    """A camera ``[x, y, z, yaw, pitch]`` that frames a voxel set's bounding box.
+def frame_voxels(vox, fov: float, width: int, height: int):
+    """The default camera of ``render-voxels``: every voxel of the scene in view.
 
-    Seen from the +z side, 20 degrees from above (yaw 180, pitch -20), at the
-    nearest distance where all eight corners of the box lie inside the view with a
-    5 % margin (like ``jaxgfx render``'s framing, but fitted to the box's corners
-    rather than its bounding sphere, so thin and flat scenes fill the frame).
+    Seen from the scene's front (+z), 20 degrees from above (yaw 180, pitch -20), at the
+    nearest distance where every voxel cube lies inside the view with the CLI's margin
+    (:func:`jaxgfx.camera.frame_points` with ``half_size`` 0.5).
+
+    Returns:
+        The :class:`~jaxgfx.camera.Camera` (near 0.05 voxels, far as the caller sets).
     """
-    import itertools
-
     import numpy as np
 
-    from jaxgfx.camera import camera_basis, camera_from_degrees
-
-    c = np.asarray(vox.coords, np.float64)
-    lo, hi = (c.min(0), c.max(0) + 1.0) if len(c) else (np.zeros(3), np.asarray(vox.shape, float))
-    center = 0.5 * (lo + hi)
-    yaw, pitch = 180.0, -20.0
-    probe = camera_from_degrees(center, yaw, pitch, 0.0, fov, width, height)
-    right, up, forward = (np.asarray(v, np.float64) for v in camera_basis(probe))
-    tan_y = math.tan(math.radians(fov) / 2)
-    tan_x = tan_y * width / height
-    corners = np.array(list(itertools.product(*zip(lo, hi)))) - center
-    # Camera at center - dist * forward: a corner p is at depth dist + p.f; it is
-    # inside the view when |p.r| <= tan_x * depth and |p.u| <= tan_y * depth.
-    need = np.maximum(np.abs(corners @ right) / tan_x, np.abs(corners @ up) / tan_y)
-    dist = float(np.max(need - corners @ forward)) * 1.05 + 1.0
-    eye = center - dist * forward
-    return [*(round(float(v), 3) for v in eye), yaw, pitch]
+    c = np.asarray(vox.coords, np.float64) + 0.5
+    if len(c) == 0:  # an empty scene: frame its grid
+        c = np.array(list(np.ndindex(2, 2, 2)), np.float64) * np.asarray(vox.shape, float)
+    return framed_camera(c, VOXEL_VIEW, fov, (width, height), half_size=0.5)
 
 
 def warn_lost_elements(stats: dict, settings, cam) -> None:
@@ -231,30 +327,98 @@ def warn_lost_elements(stats: dict, settings, cam) -> None:
     )
 
 
+SCENE_KIND = "a scene .npz written by 'jaxgfx voxelize'"
+
+
+def _check_scene_path(scene: str) -> None:
+    """Names what a file is when it is not a scene: a mesh, a volume, a Voxlap file."""
+    from jaxgfx import raycast as V
+
+    ext = Path(scene).suffix.lower()
+    if ext == ".npz" or Path(scene).is_dir():
+        check_in_file("scene", scene, SCENE_KIND)
+        return
+    kind = (
+        "a mesh"
+        if ext in MESH_SUFFIXES
+        else "a Voxlap file"
+        if ext in (".vxl", ".kv6")
+        else "a volume"
+        if V.volume_suffix(scene)
+        else None
+    )
+    if kind is not None:
+        res = "" if kind == "a Voxlap file" or kind == "a volume" else " --resolution 128"
+        raise CliError(
+            f"scene {scene!r} is {kind}, not {SCENE_KIND}; voxelize it first: jaxgfx "
+            f"voxelize {scene}{res} --out scene.npz"
+        )
+    got = repr(ext) if ext else "no suffix"
+    raise CliError(f"scene {scene!r} has {got}; render-voxels reads {SCENE_KIND}")
+
+
+def _finish(cam, color, depth, key, lit: bool, aa: tuple[int, int]):
+    """Lights the ray-cast frame (unless ``lit`` is False), puts it on the sky and averages
+    the anti-aliasing grid back: ``(color, depth)`` at the output size."""
+    import jax.numpy as jnp
+
+    from jaxgfx.compose import background
+    from jaxgfx.post import antialias, shade_voxels
+
+    if lit:
+        # Lit on the supersampled frame, before it is averaged back (4.5.6).
+        color = shade_voxels(cam, color, depth, key=key)
+    sky = background(cam).color  # the sky of jaxgfx render
+    color = jnp.where(jnp.isfinite(depth)[..., None], color, sky)
+    return antialias(color, depth, aa)
+
+
+@functools.cache
+def _finish_jit():
+    import jax
+
+    return jax.jit(_finish, static_argnums=(4, 5))
+
+
 def run_render_voxels(args) -> int:
     """Renders a saved voxel scene to a PNG (and optionally a depth .npy)."""
     out_png = check_out_file("--out", args.out, (".png",))
     depth_npy = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
     check_image(args.size, RAY_BYTES * args.aa[0] * args.aa[1])
+    _check_scene_path(args.scene)
 
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
     from jaxgfx import raycast as RC
     from jaxgfx.camera import camera_from_degrees, supersampled
     from jaxgfx.io import save_npy, save_png
-    from jaxgfx.post import antialias, shade_voxels
 
-    vox = RC.load_scene(args.scene)
+    with input_errors():
+        vox = RC.load_scene(args.scene)
     check_levels(args.levels, max(vox.shape), "scene's largest axis")
     w, h = args.size
-    camera = args.camera if args.camera is not None else frame_voxels(vox, args.fov, w, h)
-    x, y, z, yaw, pitch = camera
-    cam = camera_from_degrees([x, y, z], yaw, pitch, 0.0, args.fov, w, h, far=args.far)
+    if args.camera is not None:
+        x, y, z, yaw, pitch = args.camera
+        view = camera_from_degrees([x, y, z], yaw, pitch, 0.0, args.fov, w, h, far=args.far)
+    else:
+        view = frame_voxels(vox, args.fov, w, h)
+        view = camera_from_degrees(
+            np.asarray(view.position),
+            math.degrees(float(view.yaw)),
+            math.degrees(float(view.pitch)),
+            0.0,
+            args.fov,
+            w,
+            h,
+            far=args.far,
+        )
     # Anti-aliasing (4.5.6.2): the same view on a finer grid, averaged back.
-    cam = supersampled(cam, args.aa)
+    cam = supersampled(view, args.aa)
     rle = RC.encode_rle(vox, levels=args.levels)
-    RC.check_camera_outside(rle, cam)
+    with input_errors("--camera"):
+        RC.check_camera_outside(rle, cam)
     t0 = time.perf_counter()
     if args.reference:
         occ, col = RC.voxels_to_dense(vox)
@@ -280,28 +444,36 @@ def run_render_voxels(args) -> int:
         )
         stats = {k: int(v) for k, v in out.stats.items()}
         warn_lost_elements(stats, settings, cam)
-    color = out.color
-    if not args.unlit:
-        # Lit on the supersampled frame, before it is averaged back (4.5.6).
-        # jit of the function itself (not a new lambda) so repeated calls reuse the compile.
-        color = jax.jit(shade_voxels)(cam, color, out.depth, key=jax.random.key(0))
-    color, depth = antialias(color, out.depth, args.aa)
+    color, depth = _finish_jit()(
+        cam, out.color, out.depth, jax.random.key(0), not args.unlit, tuple(args.aa)
+    )
     jax.block_until_ready(depth)
     seconds = time.perf_counter() - t0
-    save_png(out_png, color)
+    with writing("--out", out_png):
+        save_png(out_png, color)
     if depth_npy is not None:
-        save_npy(depth_npy, depth)
+        with writing("--depth", depth_npy):
+            save_npy(depth_npy, depth)
+    hits = int(jnp.sum(jnp.isfinite(depth)))
+    warn_if_unseen(
+        "render-voxels",
+        view,
+        np.asarray(vox.coords, np.float64) + 0.5,
+        hits,
+        f"scene {args.scene!r}",
+        fov=args.fov,
+    )
     print(
         json.dumps(
             dict(
                 out=str(args.out),
                 depth=str(args.depth) if args.depth else None,
                 renderer="reference-dda" if args.reference else "rle-planes",
-                camera=",".join(f"{v:g}" for v in camera),
+                camera=camera_text(view),
                 lit=not args.unlit,
                 seconds_incl_compile=round(seconds, 3),
                 aa="{}x{}".format(*args.aa),
-                hit_pixels=int(jnp.sum(jnp.isfinite(depth))),
+                hit_pixels=hits,
                 **stats,
             )
         )
@@ -317,7 +489,8 @@ def register(subparsers) -> None:
         description="Voxelize an input into surface voxels and report the RLE memory use "
         "(thesis 4.3, 4.4.6). " + _CONVENTIONS + " Meshes keep their vertex colours, else "
         "one clay colour. Volumes keep their sample spacing (resampled to cubic voxels, "
-        "trilinear) and their slice axis (z) becomes y.",
+        "trilinear), their slice axis (z) becomes y and their front (-y, the face in DICOM "
+        "and NRRD patient coordinates) faces +z; see --up and --front.",
     )
     p.add_argument("input", help="mesh (.ply/.obj/...), volume (.mhd, .nhdr/.nrrd, .vtk; "
                    ".nii, .mha, ... with jaxgfx[volumes]), .vxl, .kv6, "
@@ -331,6 +504,10 @@ def register(subparsers) -> None:
     p.add_argument("--up", choices=UP_AXES, default=None,
                    help="the file's up axis, turned to y: meshes x|y|z (default y), volumes "
                    "also -x|-y|-z (default z, the slice axis; write --up=-z)")  # fmt: skip
+    p.add_argument("--front", choices=FRONT_AXES, default=None,
+                   help="the file's axis out of the subject's front, turned to +z where "
+                   "render-voxels looks from: volumes default -y (the face in the patient "
+                   "coordinates of DICOM and NRRD; write --front=-y), meshes z")  # fmt: skip
     p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
     p.add_argument("--out", required=True, help="output scene (.npz)")

@@ -13,9 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxgfx._src.frames import per_frame, split_rows
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _concrete, _normalize, _safe_norm
-from jaxgfx._src.skin.kernels import blend_skin
+from jaxgfx._src.skin.kernels import blend_skin, normalize_rows
 from jaxgfx._src.skin.rig import SplinePose, SplineRig
 from jaxgfx._src.skin.spline import frame_inverse, spline_frames
 
@@ -28,6 +29,7 @@ __all__ = [
     "dual_quaternions",
     "dqs_vertex",
     "dual_quaternion_skinning",
+    "POSE_CHUNK",
 ]
 
 
@@ -119,20 +121,47 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
     """LBS of a mesh; returns positions (V, 3) and unit normals (V, 3).
 
     Equals :func:`lbs_vertex` vmapped over the vertices (to float32 rounding) but runs the
-    structure-of-arrays kernel of :mod:`jaxgfx._src.skin.kernels` (about 6x faster on XLA:CPU).
+    structure-of-arrays kernel of :mod:`jaxgfx._src.skin.kernels`.  Work follows the data:
+    with the per-vertex arrays (``vertices``, ``normals``, ``joints``, ``weights``) sharded
+    along V over a mesh, each device skins its own vertices; under ``jax.vmap`` over poses a
+    batch sharded over a mesh is split the same way, and on a CPU each device runs its poses
+    in chunks of :data:`POSE_CHUNK` (the chunk's outputs stay in cache).
+
+    Args:
+        transforms: (J, 3, 4) (or (J, 4, 4)) bone matrices, bind space to posed.
+        vertices: (V, 3) bind positions.
+        normals: (V, 3) bind normals.
+        joints: (V, I) int bone indices.
+        weights: (V, I) weights, non-negative, summing to one per vertex.
     """
     _check_lbs_inputs(transforms, vertices, joints, weights)
-    t = jnp.asarray(transforms)[:, :3, :]
+    return _LBS(transforms, vertices, normals, joints, weights)
+
+
+POSE_CHUNK = 8
+"""Poses per step of the CPU batching rule of the mesh kernels."""
+
+
+def _float_type(*arrays):
+    """The floating type the mesh kernels compute in: the inputs', at least float32."""
+    return jnp.result_type(*arrays, jnp.float32)
+
+
+def _lbs_mesh(transforms, vertices, normals, joints, weights):
+    dt = _float_type(transforms, vertices, normals, weights)
+    t = jnp.asarray(transforms, dt)[:, :3, :]
     columns = jnp.swapaxes(t, -1, -2).reshape(-1, 12).T  # (12, J), columns of [R | t]
-    joints = jnp.asarray(joints).astype(jnp.int32)
     return blend_skin(
         columns,
-        joints.T,
-        jnp.asarray(weights, jnp.float32).T,
+        jnp.asarray(joints).astype(jnp.int32).T,
+        jnp.asarray(weights, dt).T,
         None,
-        jnp.asarray(vertices, jnp.float32).T,
-        jnp.asarray(normals, jnp.float32).T,
+        jnp.asarray(vertices, dt).T,
+        jnp.asarray(normals, dt).T,
     )
+
+
+_LBS = split_rows(per_frame(_lbs_mesh, chunk=POSE_CHUNK), rows=(1, 2, 3, 4))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -238,9 +267,68 @@ def dqs_vertex(
 
 
 def dual_quaternion_skinning(transforms, vertices, normals, joints, weights):
-    """DQS of a mesh: vmap of :func:`dqs_vertex`; returns positions (V, 3) and normals (V, 3)."""
+    """DQS of a mesh; returns positions (V, 3) and unit normals (V, 3).
+
+    Equals :func:`dqs_vertex` vmapped over the vertices (to float32 rounding) in the
+    structure-of-arrays layout of :func:`linear_blend_skinning`: the 8 dual-quaternion
+    coefficients of each influence are scalar gathers of (V,) index arrays, blended with the
+    signs that align each quaternion to the dominant influence's, then applied to x, y, z.
+    Placement and batching as :func:`linear_blend_skinning`.
+
+    Args:
+        transforms, vertices, normals, joints, weights: as :func:`linear_blend_skinning`;
+            the transforms must be rigid.
+    """
     _check_lbs_inputs(transforms, vertices, joints, weights)
-    dual = dual_quaternions(transforms[:, :3, :])
-    return jax.vmap(lambda j, w, v, n: dqs_vertex(dual, j, w, v, n))(
-        joints, weights, vertices, normals
-    )
+    return _DQS(transforms, vertices, normals, joints, weights)
+
+
+def _dqs_mesh(transforms, vertices, normals, joints, weights):
+    dt = _float_type(transforms, vertices, normals, weights)
+    dual = dual_quaternions(jnp.asarray(transforms, dt)[:, :3, :])  # (J, 8)
+    columns = dual.T  # (8, J)
+    index = jnp.asarray(joints).astype(jnp.int32).T  # (I, V)
+    weight = jnp.asarray(weights, dt).T
+    joints_n = columns.shape[1]
+    # Every quaternion is flipped into the dominant influence's hemisphere.  The sign depends
+    # only on the pair of bones, so it is one lookup in a (J, J) table per influence; the
+    # signed weights are written out first, so each coefficient gather below has a single
+    # consumer and XLA:CPU fuses the blend into one loop (a gather read twice is written out).
+    rot = columns[:4].T  # (J, 4)
+    sign_table = jnp.where(rot @ rot.T < 0, -1.0, 1.0).reshape(-1)  # (J * J,)
+    dom = jnp.argmax(weight, axis=0)
+    pivot = jnp.take_along_axis(index, dom[None], axis=0)[0]
+    signed = lax.optimization_barrier(weight * sign_table[pivot * joints_n + index])
+    blend = [sum(signed[i] * columns[c][index[i]] for i in range(index.shape[0])) for c in range(8)]
+    # Written out once, stacked last (so the gathers fuse into the loop that writes it):
+    # positions and normals both read the blend.
+    table = lax.optimization_barrier(jnp.stack(blend, axis=-1))  # (V, 8)
+    q = [table[:, c] for c in range(8)]
+    length = jnp.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    inv = 1.0 / jnp.where(length > 0, length, 1.0)
+    w0, vx, vy, vz = (q[c] * inv for c in range(4))
+    d0, dx, dy, dz = (q[c] * inv for c in range(4, 8))
+
+    def rotate(px, py, pz):  # p + 2 v x (v x p + w p)
+        cx = vy * pz - vz * py + w0 * px
+        cy = vz * px - vx * pz + w0 * py
+        cz = vx * py - vy * px + w0 * pz
+        return (
+            px + 2 * (vy * cz - vz * cy),
+            py + 2 * (vz * cx - vx * cz),
+            pz + 2 * (vx * cy - vy * cx),
+        )
+
+    # translation: vector part of 2 q_d conj(q_r)
+    tx = 2 * (w0 * dx - d0 * vx + (vy * dz - vz * dy))
+    ty = 2 * (w0 * dy - d0 * vy + (vz * dx - vx * dz))
+    tz = 2 * (w0 * dz - d0 * vz + (vx * dy - vy * dx))
+    v = jnp.asarray(vertices, dt).T
+    n = jnp.asarray(normals, dt).T
+    px, py, pz = rotate(v[0], v[1], v[2])
+    pos = jnp.stack([px + tx, py + ty, pz + tz], axis=-1)
+    raw = jnp.stack(rotate(n[0], n[1], n[2]), axis=-1)
+    return pos, normalize_rows(lax.optimization_barrier(raw))
+
+
+_DQS = split_rows(per_frame(_dqs_mesh, chunk=POSE_CHUNK), rows=(1, 2, 3, 4))

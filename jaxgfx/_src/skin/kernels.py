@@ -3,136 +3,27 @@
 Both blend 12 affine coefficients per vertex (the columns of ``[R | t]``) from a small table and
 apply them to the bind position and normal.  The per-vertex references (:func:`lbs_vertex`,
 :func:`skin_vertex_sampled`) read as the thesis writes them; vmapped, XLA:CPU compiles them to a
-gather of (V, I, 12) rows and a contraction, some 30x slower than the memory bound.  Here the
-same arithmetic runs in a structure-of-arrays layout that XLA:CPU fuses into a few loops:
+gather of (V, I, 12) rows and a contraction, far from the memory bound.  Here the same
+arithmetic runs in a structure-of-arrays layout that XLA:CPU fuses into a few loops:
 
 * the table is stored as coefficient columns (12 or 24, R), so one influence's coefficient is a
   scalar gather ``columns[c][index[i]]`` of a (V,) index array;
 * the 12 blended coefficients are (V,) arrays, applied to the (V,) arrays x, y, z;
-* every gather has exactly one consumer.  XLA:CPU does not fuse a gather whose result has several
-  users (it writes each one out, 36-48 passes over V), so positions and normals take their own
-  gathers: ``optimization_barrier`` on the indices keeps CSE from merging the two sets.
+* every gather has exactly one consumer: XLA:CPU does not fuse a gather whose result has several
+  users (it writes each one out), so positions and normals take their own gathers, and
+  ``optimization_barrier`` on the indices keeps CSE from merging the two sets;
+* outputs are stacked last, (V, 3), and normals are normalized in a second pass over the
+  written-out raw normals (fused into the gather loop, each component would recompute all
+  three for the length).
 
-Measured on a 2-core box (1 M vertices, 4 influences, 64 bones, positions and normals, one pose;
-compile excluded, medians of 7 interleaved repeats; separate runs under varying load, except that
-the 196, 65 and 43 ms come from one run):
-
-* vmap of the per-vertex reference: 196-232 ms;
-* one-hot (V, J) @ (J, 12): 647 ms; one (V, 12) row gather per influence: 177 ms;
-* SoA gathers whose coefficients feed both positions and normals: 126-191 ms (XLA writes each
-  multi-use gather out: 36-48 loops); the same with the (12, V) coefficients materialized: 91 ms;
-* this kernel with (3, V) outputs transposed to (V, 3): 65 ms; stacked last (kept): 43 ms.
-
-A select chain over the J table rows instead of each gather (``where(index == j, col[j], ...)``)
-is shape-dependent: 21.6 against 36.9 ms for the bench's 80 poses x 12,546 vertices with J = 6
-(the comparisons are pose-independent and hoisted), but 103 against 28 ms for one pose of 1 M
-vertices with J = 6 and 350 against 33 ms with J = 24: dropped.
-Packing two coefficients (LBS) or a row and its slope (sampled) into one complex64 gather halves
-the gathers but not the time: 50.2 against 56.1 ms (LBS) and 83.7 against 86.8 ms (sampled), 80
-poses x 12,546 vertices: dropped.
-For the sampled table, interpolating rows ``r`` and ``r + 1`` as 2I plain influences instead of
-row plus slope saved 6-10 % (56-59 against 63 ms, 80 poses x 12,546 vertices) in session 7, and
-lost 30 % in session 9 (below): not kept, the kernel keeps the reference's arithmetic.
-
-Session 9 (CPU time of one process, so the numbers hold on a busy box; 80 poses x 12,546
-vertices vmapped, 64 bones, 4 influences unless said):
-
-* An elemental loop computes each output element on its own, so a (V, 3) output whose every
-  component needs all three (the normal's length) recomputes all of them: normalizing in the
-  gather loop cost 3x the normal's gathers (31 against 15 ms for the normals with 6 bones
-  and 3 influences).  The normals are now written raw and normalized in a second pass:
-  52 -> 30 ms.  On one 1 M-vertex pose the fused form was as fast (26-32 ms either way).
-* Gathers from a table batched over P poses read P x 12 x J floats (245 KB for 80 x 64 bones):
-  vmapping all poses at once spills the table from the cache.  ``lax.map`` in chunks of 4-16
-  poses: 48 -> 25-26 ms (``jaxgfx.sweep.sharded_vmap(..., chunk=)``).  Chunking the vertices of
-  one pose instead (``lax.map`` over 1-16 k vertex blocks) was 3-4x slower: dropped.
-* Sharing the blended coefficients of positions and normals in one (V, 6) output: 313 against
-  73 ms wall on one 1 M-vertex pose (the multi-use gathers again): dropped.
-* :func:`style_offsets`: the style path in this layout, 107-113 -> 57 ms for both envelopes.
-
-Sampled skinning against LBS (issue 16's ``sampled >= 0.9x LBS``; the limb: 80 poses x 12,546
-vertices, 3 influences, S = 32, 6 bones for LBS; CPU time and wall of one process, best of 7-9
-interleaved rounds, one XLA device, load 3.4-4.8 on 2 cores; every variant equal to this kernel
-to 1e-6).  The kept kernel runs at 0.62-0.71x LBS (34.4 against 24.5 ms CPU time at best):
-
-* What the time goes to (the optimized LLVM IR of the position loop): XLA:CPU emits a scalar
-  loop over (pose, vertex) with the 3 components unrolled, no SIMD and no FMA contraction.  Per
-  vertex and pose the sampled position loop does 84 loads and ~165 float ops (72 table loads:
-  row and slope of 12 coefficients for 3 influences), LBS 45 loads and ~93 ops: positions alone
-  take 18.7 against 12.0 ms.  Pass 1 (the table) is 1.9 against 0.6 ms for the 80 poses.
-* (a) row and slope side by side, a (12, R, 2) table with one (V, 2) gather per coefficient and
-  influence: 0.70x (35.3 ms), with ``mode='promise_in_bounds'`` 0.71x: as fast as two gathers
-  (the loop loads each float on its own either way).
-* (b) the lerp folded into the weights (2I influences ``r``, ``r + 1`` with weights
-  ``w (1 - f)``, ``w f`` of a plain 12-column table, the LBS kernel): 0.47x (52.0 ms), 0.49x
-  with the 2I indices and weights precomputed: twice the index and weight loads and clamps.
-* The 12 blended coefficients written out once and shared by positions and normals ((12, V) or
-  (V, 12) per pose): 0.23-0.27x (106-121 ms); they are 48 MB for 80 poses, written and read.
-* Positions and raw normals from the same 12 coefficients in one loop, written as one (V, 2, 3)
-  or (V, 3, 2) array and split in the normalizing pass: sampled 33.5 against 34.7 ms (0.72x) and
-  35.8 against 34.6 ms (0.68x); LBS in the (V, 3, 2) form took 21.2 against 24.5 ms (one run at
-  load 9-10, not adopted: it would move the bar, not the ratio).
-* Poses minor, a (C, R, P) table gathered as (V, P) arrays (a vertex's indices and weights are
-  fixed along the minor axis), then transposed to (P, V, 3): LBS 24.9 -> 17.7 ms, sampled
-  34.6 -> 35.5 ms, so 0.50x.
-* On 2 devices (``sharded_vmap``, chunks of 4 / 8 / 20 / 40 poses): 0.50 / 0.45 / 0.51 / 0.45x
-  the chunk-8 LBS; pass 1 runs once per chunk there (about 45 small ops each): 4.4 against
-  1.4 ms.
-
-Session 10, like for like (every kernel in chunks of 8 poses, ``sharded_vmap(chunk=8)``, as the
-LBS row the target is measured against; CPU time of one process, best of 7 interleaved rounds,
-80 poses x 12,546 vertices, load 3.7-8.7; every variant equal to the kept kernel to 1e-6):
-
-* Chunks help LBS (24.4 -> 17.9 ms) and the styles (97.7 -> 65.8 ms) but not the sampled kernel
-  (35.4 -> 38.3 ms): chunked against chunked, sampled runs at 0.42-0.50x LBS and spline + both
-  styles at 0.27-0.30x, below the vmap-against-vmap figures above.  ``skinning_bench`` (wall,
-  best of 9): sampled 0.41x on 1 device and 0.52x on 2, styles 0.30x and 0.32x at load 2.4
-  (vmap against vmap in the same run: 0.57x and 0.44x); 0.48x / 0.47x and 0.30x / 0.26x at
-  load 7-8.  Chunks take LBS from 22.3 to 12.4 ms there (its outputs and raw normals stay in
-  cache) but the sampled kernel only from 38.9 to 30.1 ms: it is bound by its scalar arithmetic.
-  ``--xla_cpu_enable_fast_math=true`` did not help (sampled / styles against LBS, chunked, CPU
-  time, 2 alternating processes each at load 1-6: 0.47-0.65x / 0.29-0.45x with the flag,
-  0.66-0.69x / 0.40-0.41x without).
-* Pass 1 out of the chunk loop (vmapped once over a device's shard, pass 2 alone in the loop,
-  :func:`~jaxgfx._src.skin.sampled.skin_sampled_tables`): 38.9 -> 36.4 ms sampled, 62.1 -> 61.0 ms
-  with both styles on 2 devices; kept in the bench.  Pass 1 was not where the 2-device rows lost.
-* Where spline + both styles spends its 64.8 ms (1 device, chunked; LBS 17.7): the sampled blend
-  42.4, the style offsets alone 18.8, the final add and renormalization about 7 (57.8 without).
-  Normalizing once (raw blend + offset in one pass, instead of blend normalized, then the sum):
-  63.6-63.8 against 63.6 ms; the pose-independent style terms (cross-section angle, texture and
-  curve samples) written out behind a barrier: 61.5 -> 65.6 ms (no gain; XLA already keeps them
-  out of the per-pose loop).  Both dropped.
-* New design, kept as an option (``skin_sampled(..., subrows=Q)``): the lerp moved from pass 2
-  into pass 1.  The table is expanded to Q sub-rows per sample (``m_s + (q / Q) s_s``, a per-pose
-  lerp of S Q rows, written out once: fused into the gathers every read redid the lerp) and
-  pass 2 is the LBS kernel with the pose-independent index ``round(u Q)``: one table read per
-  coefficient and influence, as LBS.  It equals the reference at ``u`` rounded to ``1/Q`` of a
-  sample step, a different approximation: against exact skinning mean 0.063 % / max 1.90 % of
-  the limb radius for Q = 16, against 0.032 % / 1.75 % (Q = 64: 0.039 % / 1.61 %, but its
-  147 KB table per pose leaves L1/L2: 0.62x).  Q = 16, chunks of 8, CPU time: 0.81-0.87x LBS
-  (0.45-0.50x without sub-rows, same runs); ``skinning_bench`` wall, four runs: 0.83-1.05x.
-  With both styles (the style rotation read from sub-rows too): 58.9 against 73.8 ms, 0.30x
-  against 0.24x LBS: the style offsets (about 19 ms) and the final renormalization (about 7 ms)
-  stay.
-* Kept (session 10, second half): the style offset folded into the blend loops
-  (:func:`blend_skin_styled`).  A small pass (:func:`style_scalars`) writes ``w (D(v') - v')``
-  in the rotation's first two columns for positions and normals as one (4, V) array per pose;
-  the blend loops add ``R_d (d_x, d_y, 0)`` with the dominant spline's rotation gathered as one
-  more influence (6 sub-row values, or 6 rows and 6 slopes without sub-rows), so no (V, 3)
-  offsets are written and re-read and the add pass goes.  The styled normal is the raw blend
-  plus the offset, normalized once: this is Eq. 5.13 (``skin_exact`` normalizes
-  ``Σ w_i R_i n'_i`` with the styled ``n'_d``), where the separate path normalized the blend,
-  added the offset and normalized again (max normal error against exact, 8 limb poses:
-  0.092 -> 0.0078 with 16 sub-rows, 0.092 -> 0.0052 without; positions unchanged to 1e-6).
-  80 poses x 12,546 vertices, chunks of 8, CPU time, best of 9 (7) interleaved rounds, load
-  3.0-3.3: 16 sub-rows + both styles 43.8 -> 34.5 ms, 0.42 -> 0.53x the chunked LBS (18.4 ms);
-  without sub-rows 79.9 -> 70.6 ms (0.28 -> 0.31x, LBS 22.3 ms, load from a test run alongside).
-  ``skinning_bench`` (wall, best of 9, load 3.1-3.3): 16 sub-rows + both styles 0.56x (1
-  device) and 0.58x (2 devices) the chunked LBS, without sub-rows 0.33x / 0.34x; vmapped over
-  all 80 poses at once the sub-row tables leave the cache: 0.39x (0.42x without sub-rows).
-* Fitting (``fit_style(samples=S)``) gains where inference cannot: the poses are fixed, so pass 1
-  and the unstyled blend are computed once per fit and a step differentiates only the style
-  offsets: 186 -> 480 and 245 -> 807 steps/s (``experiments/fit_style.py``, 1,536 vertices).
+Sampled spline skinning reads a row and its slope per coefficient and influence
+(:func:`blend_skin` with ``frac``); with sub-rows (``skin_sampled(..., subrows=Q)``) pass 1
+expands the table to Q rows per sample, so pass 2 is the LBS kernel reading the nearest sub-row.
+Deformation styles fold into the same loops (:func:`blend_skin_styled`): a small pass writes the
+in-plane offsets per pose (:func:`style_scalars`) and the loops add the dominant spline's
+rotation of them as one more influence, normalizing the styled normal once (Eq. 5.13).  The
+designs measured against these, and the numbers, are in the design notes
+(``docs/design/skin.md``; ``python -m experiments.skinning_bench``).
 """
 
 from __future__ import annotations
@@ -201,7 +92,7 @@ def blend_skin(
 
     Returns:
         Positions (V, 3) and unit normals (V, 3) (stacked last: under ``vmap`` over poses this
-        is faster than stacking (3, V) and transposing, 47 against 66 ms for 80 x 12,546).
+        is faster than stacking (3, V) and transposing).
     """
     m = _coefficients(columns, index, weight, frac)
     px, py, pz = _linear(m, vertices)
@@ -211,7 +102,7 @@ def blend_skin(
     raw = jnp.stack(_linear(_coefficients(columns, index, weight, frac), normals), axis=-1)
     # Normalize in a second pass over the written (V, 3) normals.  Fused into the gather loop,
     # every output component would recompute all three components for the length (3x the
-    # normal's gathers): 52 -> 30 ms CPU time for 80 poses x 12,546 vertices, 64 bones, I = 4.
+    # normal's gathers).
     return pos, normalize_rows(lax.optimization_barrier(raw))
 
 
@@ -401,8 +292,7 @@ def style_scalars(
 
     # The factors once per vertex and pose, written out as one (F, V) array: fused into the
     # rotation (or stacked with the offsets), every output component recomputes them and their
-    # gathers (4 to 6 times): 88 -> 57 ms CPU time for 80 poses x 12,546 vertices, both
-    # envelopes (the vmapped reference: 107-113 ms).
+    # gathers (4 to 6 times).
     fs = factors(row)
     if not fs:
         raise ValueError("style_offsets: radial or rect must be True")

@@ -92,7 +92,17 @@ def demo_arm_pose(rig: SplineRig, bend: float | jax.Array, twist: float | jax.Ar
 
     Returns:
         The pose (:func:`forward_kinematics` with the root unrotated).
+
+    Raises:
+        ValueError: a concrete ``bend`` or ``twist`` beyond one turn (2 pi), which is
+            almost certainly an angle in degrees.
     """
+    for name, value in (("bend", bend), ("twist", twist)):
+        if not isinstance(value, jax.core.Tracer) and np.any(np.abs(np.asarray(value)) > 2 * np.pi):
+            raise ValueError(
+                f"{name} is in radians: {float(np.max(np.abs(value))):g} is more than one turn "
+                f"(degrees? use math.radians)"
+            )
     rot = axis_angle_to_matrix(jnp.stack([-bend, 0.0, 0.0]).astype(jnp.float32))
     twists = jnp.reshape(jnp.asarray(twist, jnp.float32), (1,))
     return forward_kinematics(rig, jnp.eye(3)[None], rot[None], twist=twists)

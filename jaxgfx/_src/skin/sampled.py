@@ -285,10 +285,8 @@ def skin_sampled_tables(
             rows) and every influence reads its nearest sub-row, ``u`` rounded to ``1/Q`` of a
             sample step, with the LBS kernel's arithmetic (one table read per coefficient and
             influence instead of two).  Equals :func:`skin_vertex_sampled` at the rounded
-            ``u``; on the bench's limb Q = 16 ran at 0.81-0.87x LBS against 0.45-0.50x (CPU
-            time, chunks of 8) and deviated from the unrounded path by 0.047 % of the radius
-            on average (max 2.0 %; the unrounded path deviates from exact skinning by
-            0.032 %, max 1.75 %; this one by 0.063 %, max 1.90 %).
+            ``u``: faster, at a larger deviation from exact skinning (see the design notes,
+            docs/design/skin.md).
             The style offsets likewise read the dominant spline's rotation from sub-rows
             (:func:`style_offset_sampled` at the rounded ``u``).
 
@@ -330,7 +328,7 @@ def skin_sampled_tables(
         # style_offset_sampled as one more term of the blend loops (blend_skin_styled): a
         # small pass writes the (4, V) in-plane offsets, the loops read the dominant spline's
         # rotation (row and slope); the normal offset joins the raw blend, normalized once
-        # (Eq. 5.13, as skin_exact).  80 x 12,546 chunked: 79.9 -> 70.6 ms CPU time.
+        # (Eq. 5.13, as skin_exact); no (V, 3) offsets are written and read again.
         assert style is not None
         drow, dt, _, d = style_scalars(
             style_table, style, samples, *dom, radial=radial, rect=rect, subrows=None

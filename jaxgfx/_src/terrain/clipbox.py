@@ -166,7 +166,7 @@ def is_nested(inner_origin, outer_origin, level: int, size: int) -> bool:
 def slab_thickness(delta) -> tuple[int, int, int]:
     """Static slab thickness per axis for a box shift of ``delta`` voxels (host side).
 
-    The next power of two >= |delta_d| (0 when the axis does not move), so only a
+    The next power of two >= ``|delta_d|`` (0 when the axis does not move), so only a
     handful of shapes are ever compiled.
     """
     out = []
@@ -189,7 +189,7 @@ def shift_clipbox(
         terrain: terrain pytree.
         box: the current box.
         new_origin: (3,) int32, a multiple of 2^(level+1).
-        slabs: static per-axis slab thickness >= |shift| in voxels (see
+        slabs: static per-axis slab thickness >= ``|shift|`` in voxels (see
             :func:`slab_thickness`); only ``sum_d slabs_d N^2`` points are sampled.
         level: optional static copy of ``box.level`` for the sampling fast paths
             (see :func:`sample_clipbox`); it must equal ``box.level``.

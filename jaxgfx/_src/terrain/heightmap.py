@@ -4,12 +4,16 @@ A height map becomes a volume that is solid below a continuous surface.  The map
 from samples to the world is one :class:`HeightmapMapping`: the sample in row ``r``,
 column ``c`` with value ``v`` stands at
 
-    x = origin_x + (c + 0.5) cell,   z = origin_z + (r + 0.5) cell,
+    x = origin_x + (c + 0.5) cell_x,   z = origin_z + (r + 0.5) cell_z,
     y = base + (v - min_value) vertical_scale,
 
 and between sample centres the surface height ``H(x, z)`` is the bilinear interpolation
-of the four nearest samples (edges clamped, or tiled with ``wrap``).  A voxel ``(x, y, z)``
-(the unit cube with that lower corner) is solid iff its centre is below the surface:
+of the four nearest samples.  Beyond the map (unless it is tiled with ``wrap``) the
+edge samples extend outwards and fade, over ``apron_fade`` voxels, to one flat level,
+the median height of the map's border samples: a flat apron around the map instead
+of edge profiles stretched into ridges to the horizon (see :func:`_apron`).  A voxel
+``(x, y, z)`` (the unit cube with that lower corner) is solid iff its centre is below
+the surface:
 
     solid(x, y, z)  <=>  y + 0.5 < H(x + 0.5, z + 0.5),
 
@@ -17,10 +21,11 @@ so the top solid voxel of a column is ``ceil(H - 0.5) - 1`` and :func:`ground_he
 ``H`` itself.  Levels sample the same function at every ``2^l``-th voxel, so fine levels
 (cell > 1) see sloped ground, not terraces.
 
-USGS ASCII DEMs, ``.npy``/``.npz`` arrays and grey or RGB images are read by
-:func:`read_heightmap`, which also returns what the file says about itself (horizontal
-spacing, elevation unit); :func:`heightmap_terrain` uses that for true proportions.
-An existing binary volume is placed in the world, optionally tiled in x and z.
+Elevation files are read by :func:`read_heightmap` (``elevation.py``), which also
+returns what the file says about itself (metres between samples along x and z, the
+height unit); :func:`heightmap_terrain` uses that for true proportions, the same
+metres per voxel on x, y and z.  An existing binary volume is placed in the world,
+optionally tiled in x and z.
 """
 
 from __future__ import annotations
@@ -28,13 +33,18 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.checks import check_float, static_field
+from jaxgfx._src.terrain.elevation import (
+    HeightmapData,
+    load_heightmap,
+    read_heightmap,
+)
 from jaxgfx._src.terrain.functions import _I32, _floormod
 
 __all__ = [
@@ -48,164 +58,23 @@ __all__ = [
     "default_viewer",
     "VolumeTerrain",
     "volume_terrain",
+    "IMAGE_RELIEF",
+    "APRON_FADE",
 ]
 
 _F32 = jnp.float32
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 _REACH = 2**30
 """Voxel coordinates are clipped to +-2^30 around the map before subtracting its origin:
-no int32 overflow, and beyond the map the clamped surface is the same anyway."""
-_METRES_PER_FOOT = 0.3048
-_METRES_PER_ARC_SECOND = 30.87
-"""One arc-second of latitude; geographic DEMs give their spacing in arc-seconds."""
-
-
-# --------------------------------------------------------------------------------------
-# Reading height maps
-# --------------------------------------------------------------------------------------
-
-
-class HeightmapData(NamedTuple):
-    """A height-map file: its samples and what the file says about them.
-
-    Attributes:
-        heights: (H, W) float64 values as the file gives them (DEM: elevations in the
-            file's elevation unit; images: grey levels, RGB averaged; arrays: as stored).
-            Row 0 is north (the image's top row).
-        spacing: horizontal distance between samples in metres, or None when the file
-            does not say (images, arrays).
-        height_unit: metres per height unit (1.0 for metres, 0.3048 for feet), or None.
-    """
-
-    heights: np.ndarray
-    spacing: float | None
-    height_unit: float | None
-
-
-def _header_int(header: str, a: int, b: int) -> int | None:
-    try:
-        return int(header[a:b])
-    except ValueError:
-        return None
-
-
-def _fill_outside(grid: np.ndarray) -> np.ndarray:
-    """NaN cells take the mean of their known 4-neighbours, ring by ring (outwards).
-
-    A USGS DEM's quad is rotated against the UTM grid, so profiles start and end at
-    different rows and the grid's corners outside the quad have no samples.  Growing
-    the known samples outwards extends the edge as the clamped map edge does beyond
-    the map; the lowest height (the old fill) dug a moat around the map and a cliff
-    along the quad's slanted sides.
-    """
-    grid = grid.copy()
-    known = ~np.isnan(grid)
-    if not known.any():
-        raise ValueError("no samples")
-    while not known.all():
-        val = np.pad(np.where(known, grid, 0.0), 1)
-        cnt = np.pad(known.astype(np.float64), 1)
-        total = val[:-2, 1:-1] + val[2:, 1:-1] + val[1:-1, :-2] + val[1:-1, 2:]
-        n = cnt[:-2, 1:-1] + cnt[2:, 1:-1] + cnt[1:-1, :-2] + cnt[1:-1, 2:]
-        grow = ~known & (n > 0)
-        grid[grow] = total[grow] / n[grow]
-        known = known | grow
-    return grid
-
-
-def _parse_usgs_dem(data: bytes, path: str) -> HeightmapData:
-    """USGS ASCII DEM (type A header + type B profiles) -> heights and spacing.
-
-    Type A record fields (0-based byte ranges): ground unit 528:534 (0 radians,
-    1 feet, 2 metres, 3 arc-seconds), elevation unit 534:540 (1 feet, 2 metres),
-    spatial resolution x, y, z 816:852 (3 x E12.6), profile count 858:864.  Each
-    type B profile holds 9 header tokens (row, column, m, n, x, y, local datum,
-    min, max) and m elevations; elevation = datum + value * z resolution.
-    """
-    header = data[:1024].decode("ascii", errors="replace")
-    try:
-        dx = float(header[816:828].replace("D", "E"))
-        dy = float(header[828:840].replace("D", "E"))
-        dz = float(header[840:852].replace("D", "E"))
-        n_profiles = int(header[858:864])
-        tokens = data[1024:].decode("ascii").replace("D", "E").split()
-        pos = 0
-        profiles = []
-        for _ in range(n_profiles):
-            m = int(tokens[pos + 2])
-            y0 = float(tokens[pos + 5])
-            datum = float(tokens[pos + 6])
-            elev = np.asarray(tokens[pos + 9 : pos + 9 + m], dtype=np.float64)
-            if elev.size != m:
-                raise ValueError("truncated profile")
-            profiles.append((y0, datum + elev * (dz if dz > 0 else 1.0)))
-            pos += 9 + m
-    except (ValueError, IndexError, UnicodeDecodeError) as err:
-        raise ValueError(f"heightmap {path!r} is not a readable USGS ASCII DEM: {err}") from None
-    if not profiles or dy <= 0:
-        raise ValueError(f"heightmap {path!r} has no elevation profiles")
-    y_lo = min(p[0] for p in profiles)
-    rows = max(int(round((p[0] - y_lo) / dy)) + p[1].size for p in profiles)
-    grid = np.full((rows, len(profiles)), np.nan)
-    for c, (y0, elev) in enumerate(profiles):
-        r = int(round((y0 - y_lo) / dy))
-        grid[r : r + elev.size, c] = elev
-    grid = _fill_outside(grid)
-    # Rows are spaced dy, columns dx; the DEMs we know have dx == dy, one cell serves both.
-    ground = {1: _METRES_PER_FOOT, 2: 1.0, 3: _METRES_PER_ARC_SECOND}.get(
-        _header_int(header, 528, 534) or -1
-    )
-    spacing = None if ground is None or dx <= 0 else float(math.sqrt(dx * dy) * ground)
-    unit = {1: _METRES_PER_FOOT, 2: 1.0}.get(_header_int(header, 534, 540) or -1)
-    return HeightmapData(grid[::-1], spacing, unit)  # north at row 0, like an image
-
-
-def read_heightmap(path: str | os.PathLike) -> HeightmapData:
-    """Reads a height map and what its file says: USGS ASCII ``.dem``, ``.npy``/``.npz``, image.
-
-    A DEM gives its horizontal spacing and elevation unit (type A header); images and
-    arrays give neither (``spacing`` and ``height_unit`` are None).
-
-    Returns:
-        :class:`HeightmapData` with (H, W) float64 ``heights``.
-
-    Raises:
-        FileNotFoundError: ``path`` does not exist.
-        ValueError: ``path`` is not a DEM, an array or an image, or is not 2-D and finite.
-    """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"heightmap path {path!r} does not exist")
-    lower = path.lower()
-    if lower.endswith(".dem"):
-        with open(path, "rb") as fh:
-            return _parse_usgs_dem(fh.read(), path)
-    if lower.endswith((".npy", ".npz")):
-        arr = np.load(path)
-        if isinstance(arr, np.lib.npyio.NpzFile):
-            arr = arr[arr.files[0]]
-    else:
-        import imageio.v3 as iio
-
-        try:
-            arr = iio.imread(path)
-        except Exception as err:  # imageio raises many types for unreadable files
-            raise ValueError(f"heightmap {path!r} is not an image or a DEM: {err}") from None
-    arr = np.asarray(arr, np.float64)
-    if arr.ndim == 3:
-        arr = arr[..., :3].mean(axis=-1)
-    if arr.ndim != 2 or min(arr.shape) < 1:
-        raise ValueError(f"heightmap {path!r} must be 2-D, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"heightmap {path!r} contains non-finite values")
-    return HeightmapData(arr, None, None)
-
-
-def load_heightmap(path: str | os.PathLike) -> np.ndarray:
-    """The (H, W) float64 heights of :func:`read_heightmap` (file units, grey levels)."""
-    return read_heightmap(path).heights
-
-
+no int32 overflow, and beyond the map the apron is flat anyway."""
+IMAGE_RELIEF = 0.125
+"""Files without units (images, arrays): the samples' range spans this fraction of the
+map's longer side (at most its shorter side), whatever the bit depth -- the proportion
+of real mountain maps (St Helens: 1.86 km of relief on 14 km)."""
+APRON_FADE = 0.05
+"""Beyond the map the edge fades to the flat apron over this fraction of the map's
+longer side (at least two samples): short enough that edge profiles do not run on as
+ridges, long enough that the map does not end in a cliff."""
 # --------------------------------------------------------------------------------------
 # Height maps placed in the world (3.5.2)
 # --------------------------------------------------------------------------------------
@@ -216,17 +85,24 @@ class HeightmapMapping:
     """Where a height map's samples stand in the world (hashable; a static field).
 
     The sample in row ``r``, column ``c`` with value ``v`` stands at
-    ``x = origin[0] + (c + 0.5) cell``, ``z = origin[1] + (r + 0.5) cell``,
+    ``x = origin[0] + (c + 0.5) cell``, ``z = origin[1] + (r + 0.5) cell_z``,
     ``y = base + (v - min_value) vertical_scale`` (world voxel units, y up).
 
     Attributes:
         origin: (x, z) world position of pixel (0, 0)'s outer corner, voxels.
-        cell: voxels per pixel horizontally.
+        cell: voxels per sample along x.
         vertical_scale: voxels per height unit.
         base: world y of the minimum value.
         shape: (rows, cols) of the height map.
         min_value: the map's minimum value (file units).
-        wrap: True tiles the map with period ``shape * cell``; False clamps its edges.
+        wrap: True tiles the map with period ``(cols cell, rows cell_z)``; False
+            surrounds it with the flat apron.
+        cell_z: voxels per sample along z; None: ``cell`` (square samples).
+        apron_height: voxels above ``base`` of the flat apron around the map.
+        apron_fade: voxels beyond the edge over which the edge fades into the apron.
+        metres_per_sample: (x, z) metres between samples, when the file says.
+        height_unit: metres per height unit, when the file says.
+        crs: the file's grid, e.g. ``"EPSG:4326"``, when it says.
     """
 
     origin: tuple[float, float]
@@ -236,27 +112,63 @@ class HeightmapMapping:
     shape: tuple[int, int]
     min_value: float
     wrap: bool = False
+    cell_z: float | None = None
+    apron_height: float = 0.0
+    apron_fade: float = 1.0
+    metres_per_sample: tuple[float, float] | None = None
+    height_unit: float | None = None
+    crs: str | None = None
+
+    @property
+    def cells(self) -> tuple[float, float]:
+        """(x, z) voxels per sample."""
+        return (self.cell, self.cell if self.cell_z is None else self.cell_z)
+
+    @property
+    def metres_per_voxel(self) -> tuple[float, float, float] | None:
+        """(x, y, z) metres per voxel of the built terrain, when the file gives units."""
+        if self.metres_per_sample is None or self.height_unit is None:
+            return None
+        cx, cz = self.cells
+        mx, mz = self.metres_per_sample
+        return (mx / cx, self.height_unit / self.vertical_scale, mz / cz)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able ``{origin, cell, vertical_scale, base, shape, edge}``: issue 17's keys
-        and what lies beyond the map (``"clamp"``: the edge samples extend outwards;
-        ``"wrap"``: the map repeats)."""
-        return {
+        """JSON-able mapping: ``origin``, ``cell`` [x, z], ``vertical_scale``, ``base``,
+        ``shape``; ``edge`` (``"apron"`` with ``apron``'s world y and fade, or
+        ``"wrap"``); the scale: ``metres_per_sample`` [x, z] read from the file and
+        ``metres_per_voxel`` [x, y, z] of the terrain built (None without units), and
+        the file's ``crs``."""
+
+        def r(v):
+            return None if v is None else [round(float(a), 6) for a in v]
+
+        out: dict[str, Any] = {
             "origin": [float(self.origin[0]), float(self.origin[1])],
-            "cell": float(self.cell),
+            "cell": [float(c) for c in self.cells],
             "vertical_scale": float(self.vertical_scale),
             "base": float(self.base),
             "shape": [int(self.shape[0]), int(self.shape[1])],
-            "edge": "wrap" if self.wrap else "clamp",
+            "edge": "wrap" if self.wrap else "apron",
         }
+        if not self.wrap:
+            out["apron"] = {
+                "y": float(self.base + self.apron_height),
+                "fade": float(self.apron_fade),
+            }
+        out["metres_per_sample"] = r(self.metres_per_sample)
+        out["metres_per_voxel"] = r(self.metres_per_voxel)
+        out["crs"] = self.crs
+        return out
 
     def sample_position(self, rows, cols, values) -> np.ndarray:
         """World (x, y, z) of samples: ``rows``, ``cols``, ``values`` broadcast -> (..., 3)."""
         r, c, v = np.broadcast_arrays(
             np.asarray(rows, np.float64), np.asarray(cols, np.float64), np.asarray(values)
         )
-        x = self.origin[0] + (c + 0.5) * self.cell
-        z = self.origin[1] + (r + 0.5) * self.cell
+        cx, cz = self.cells
+        x = self.origin[0] + (c + 0.5) * cx
+        z = self.origin[1] + (r + 0.5) * cz
         y = self.base + (v.astype(np.float64) - self.min_value) * self.vertical_scale
         return np.stack([x, y, z], axis=-1)
 
@@ -293,6 +205,33 @@ def _bilinear(heights: jax.Array, u: jax.Array, v: jax.Array, wrap: bool) -> jax
     return top * (1 - fv) + bottom * fv
 
 
+def _apron(m: HeightmapMapping, u: jax.Array, v: jax.Array) -> jax.Array:
+    """Weight of the flat apron at fractional sample (column, row) ``(u, v)``, in [0, 1].
+
+    0 on the map (within the outer sample centres' half cell), rising with the
+    smoothstep of the distance beyond it over ``apron_fade`` voxels, 1 from there on.
+    The distance is Euclidean in voxels, so the corners fade round, not along streaks.
+    """
+    rows, cols = m.shape
+    cx, cz = m.cells
+    ex = jnp.maximum(jnp.maximum(-0.5 - u, u - (cols - 0.5)), 0.0) * _F32(cx)
+    ez = jnp.maximum(jnp.maximum(-0.5 - v, v - (rows - 0.5)), 0.0) * _F32(cz)
+    fade = _F32(m.apron_fade)
+    ex, ez = jnp.minimum(ex, fade), jnp.minimum(ez, fade)
+    t = jnp.minimum(jnp.sqrt(ex * ex + ez * ez) / fade, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _surface(heights: jax.Array, m: HeightmapMapping, u: jax.Array, v: jax.Array) -> jax.Array:
+    """``H - base`` at fractional sample (column, row) ``(u, v)``: the map, tiled or in
+    its apron."""
+    h = _bilinear(heights, u, v, m.wrap)
+    if m.wrap:
+        return h
+    w = _apron(m, u, v)
+    return h * (1.0 - w) + _F32(m.apron_height) * w
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class HeightmapTerrain:
@@ -313,11 +252,14 @@ class HeightmapTerrain:
     def _column_height(self, x: jax.Array, z: jax.Array) -> jax.Array:
         """Float32 ``H - base`` at the centre of the int32 voxel column ``(x, z)``."""
         m = self.mapping
-        u = self._axis_coord(x, m.origin[0], m.shape[1])
-        v = self._axis_coord(z, m.origin[1], m.shape[0])
-        return _bilinear(self.heights, u, v, m.wrap)
+        cx, cz = m.cells
+        u = self._axis_coord(x, m.origin[0], m.shape[1], cx)
+        v = self._axis_coord(z, m.origin[1], m.shape[0], cz)
+        return _surface(self.heights, m, u, v)
 
-    def _axis_coord(self, a: jax.Array, origin: float, count: int, frac=0.5) -> jax.Array:
+    def _axis_coord(
+        self, a: jax.Array, origin: float, count: int, cell: float, frac=0.5
+    ) -> jax.Array:
         """Fractional sample index of the world point ``a + frac`` along one axis.
 
         ``a`` is int32 (``frac = 0.5``: the centre of voxel ``a``; an array: float32
@@ -330,12 +272,12 @@ class HeightmapTerrain:
         of = origin - oi
         a = jnp.asarray(a, _I32)
         if m.wrap:
-            period = int(round(count * m.cell))
+            period = int(round(count * cell))
             d = _floormod(_floormod(a, period) - (oi % period), period)
         else:
             d = _int_offset(a, oi)
         rest = _F32(frac - of) if isinstance(frac, float) else frac - _F32(of)
-        return (d.astype(_F32) + rest) / _F32(m.cell) - _F32(0.5)
+        return (d.astype(_F32) + rest) / _F32(cell) - _F32(0.5)
 
     def snap_to_surface(self, origin: jax.Array, vertices: jax.Array) -> jax.Array:
         """Mesh vertices moved vertically onto the surface ``y = H(x, z)`` (3.4.7).
@@ -354,9 +296,10 @@ class HeightmapTerrain:
         """
         m = self.mapping
         origin = jnp.asarray(origin, _I32)
-        u = self._axis_coord(origin[0], m.origin[0], m.shape[1], vertices[:, 0])
-        v = self._axis_coord(origin[2], m.origin[1], m.shape[0], vertices[:, 2])
-        h = _bilinear(self.heights, u, v, m.wrap)
+        cx, cz = m.cells
+        u = self._axis_coord(origin[0], m.origin[0], m.shape[1], cx, vertices[:, 0])
+        v = self._axis_coord(origin[2], m.origin[1], m.shape[0], cz, vertices[:, 2])
+        h = _surface(self.heights, m, u, v)
         # y - origin_y = H - base + (base - origin_y); the int parts cancel in int32
         bi = math.floor(m.base)
         dy = _int_offset(origin[1], bi).astype(_F32) - _F32(m.base - bi)
@@ -394,28 +337,35 @@ def heightmap_terrain(
     origin: tuple[float, float] | None = None,
     base: float = 0,
     wrap: bool = False,
+    apron_fade: float | None = None,
 ) -> HeightmapTerrain:
     """Places a height map in the world as a :class:`HeightmapTerrain` (3.5.2).
 
-    Defaults give true proportions where the file says them: a USGS DEM's horizontal
-    spacing and elevation unit make ``vertical_scale = cell * metres_per_unit / spacing``
-    (St Helens: 30 m pixels, metres -> cell / 30 voxels per metre).  Images and arrays
-    say nothing, so one height unit (grey level) is one pixel's width:
-    ``vertical_scale = cell`` (one grey level per voxel at cell 1); set it to taste.
+    Files with units (GeoTIFF, SRTM ``.hgt``, ESRI ``.asc``, USGS ``.dem``) get true
+    proportions: one metres-per-voxel on x, y and z.  ``cell`` voxels per sample along
+    x fixes it (``metres_per_sample[0] / cell``); the z cell and the vertical scale
+    follow (3 arc-seconds at 36.6 N, 74.6 m by 92.5 m: cell_z = 1.24 cell).  Files without
+    units (images, arrays) get square cells and a relief (max - min) of
+    :data:`IMAGE_RELIEF` of the map's longer side, at most its shorter side, whatever
+    the bit depth; set ``vertical_scale`` to taste.
 
     Args:
         heights_or_path: (H, W) heights, a :class:`HeightmapData`, or a path for
             :func:`read_heightmap`.
-        cell: voxels per pixel horizontally (> 0); default 1.
+        cell: voxels per sample along x (> 0); default 1.
         vertical_scale: voxels per height unit (> 0); default as above.
         origin: (x, z) world position of pixel (0, 0)'s corner; default centres the map
             on the world origin (rounded to whole voxels).
         base: world y of the map's minimum value.
-        wrap: tile the map with period ``(W cell, H cell)`` (which must be whole voxels);
-            default False clamps the edges (the edge samples extend outwards).
+        wrap: tile the map with period ``(W cell_x, H cell_z)`` (which must be whole
+            voxels); default False surrounds it with a flat apron at the median height
+            of its border samples.
+        apron_fade: voxels beyond the edge over which the edge fades into the apron
+            (> 0); default :data:`APRON_FADE` of the map's longer side.
 
     Returns:
-        A :class:`HeightmapTerrain`; its ``mapping`` says where every sample stands.
+        A :class:`HeightmapTerrain`; its ``mapping`` says where every sample stands and
+        the scale (``mapping.to_dict()``).
 
     Raises:
         ValueError: naming the argument that is empty, non-finite, out of range.
@@ -437,36 +387,57 @@ def heightmap_terrain(
     cell = 1.0 if cell is None else check_float("cell", cell)
     if cell <= 0:
         raise ValueError(f"cell must be > 0, got {cell}")
-    if vertical_scale is None:
-        if data.spacing and data.height_unit:
-            vertical_scale = cell * data.height_unit / data.spacing
-        else:
-            vertical_scale = cell
+    spacing = data.spacing
+    if spacing is not None and not isinstance(spacing, (tuple, list, np.ndarray)):
+        spacing = (float(spacing), float(spacing))
+    units = spacing is not None and data.height_unit is not None
+    rows, cols = h.shape
+    rng = float(h.max() - h.min())
+    if units:
+        mx, mz = (float(a) for a in spacing)  # type: ignore[union-attr]
+        if not (mx > 0 and mz > 0):
+            raise ValueError(f"the file's sample spacing must be > 0, got {spacing}")
+        metres = mx / cell  # per voxel, on every axis
+        cell_z = mz / metres
+        if vertical_scale is None:
+            vertical_scale = float(data.height_unit) / metres  # type: ignore[arg-type]
+    else:
+        cell_z = cell
+        if vertical_scale is None:
+            long, short = max(rows, cols) * cell, min(rows, cols) * cell
+            relief = min(IMAGE_RELIEF * long, short)
+            vertical_scale = relief / rng if rng > 0 else cell
     vertical_scale = check_float("vertical_scale", vertical_scale)
     if vertical_scale <= 0:
         raise ValueError(f"vertical_scale must be > 0, got {vertical_scale}")
     base = check_float("base", base)
-    rows, cols = h.shape
+    width, depth = cols * cell, rows * cell_z
     if origin is None:
-        origin = (-math.floor(cols * cell / 2), -math.floor(rows * cell / 2))
+        origin = (-math.floor(width / 2), -math.floor(depth / 2))
     if len(origin) != 2:
         raise ValueError(f"origin must be (x, z), got {origin!r}")
     origin = (check_float("origin[0]", origin[0]), check_float("origin[1]", origin[1]))
     if max(abs(origin[0]), abs(origin[1]), abs(base)) >= _REACH:
         raise ValueError(f"origin {origin} and base {base} must be within +-2^30 voxels")
     if wrap:
-        for n, axis in ((cols, "x"), (rows, "z")):
-            if abs(n * cell - round(n * cell)) > 1e-9 * n * cell or round(n * cell) < 1:
+        for n, c, axis in ((cols, cell, "x"), (rows, cell_z, "z")):
+            if abs(n * c - round(n * c)) > 1e-9 * n * c or round(n * c) < 1:
                 raise ValueError(
-                    f"cell {cell} with wrap=True must make the {axis} period {n} * cell "
+                    f"cell {cell} with wrap=True must make the {axis} period {n} * {c:g} "
                     "a whole number of voxels"
                 )
+    if apron_fade is None:
+        apron_fade = max(APRON_FADE * max(width, depth), 2.0 * max(cell, cell_z))
+    apron_fade = check_float("apron_fade", apron_fade)
+    if apron_fade <= 0:
+        raise ValueError(f"apron_fade must be > 0, got {apron_fade}")
     rel = (h - h.min()) * vertical_scale
     if rel.max() + abs(base) >= 2**24:
         raise ValueError(
             f"vertical_scale {vertical_scale} makes the relief {rel.max():.3g} voxels "
             "(float32 heights need < 2^24)"
         )
+    border = np.concatenate([rel[0], rel[-1], rel[:, 0], rel[:, -1]])
     mapping = HeightmapMapping(
         origin=origin,
         cell=cell,
@@ -475,6 +446,12 @@ def heightmap_terrain(
         shape=(int(rows), int(cols)),
         min_value=float(h.min()),
         wrap=bool(wrap),
+        cell_z=None if cell_z == cell else float(cell_z),
+        apron_height=float(np.float32(np.median(border))),
+        apron_fade=float(apron_fade),
+        metres_per_sample=(mx, mz) if units else None,
+        height_unit=float(data.height_unit) if units else None,  # type: ignore[arg-type]
+        crs=data.crs,
     )
     return HeightmapTerrain(heights=jnp.asarray(rel, _F32), mapping=mapping)
 
@@ -502,10 +479,11 @@ def ground_height(terrain: HeightmapTerrain, x, z) -> jax.Array:
     """
     terrain = _check_heightmap(terrain)
     m = terrain.mapping
+    cx, cz = m.cells
     x, z = jnp.broadcast_arrays(jnp.asarray(x, _F32), jnp.asarray(z, _F32))
-    u = (x - _F32(m.origin[0])) / _F32(m.cell) - _F32(0.5)
-    v = (z - _F32(m.origin[1])) / _F32(m.cell) - _F32(0.5)
-    return _F32(m.base) + _bilinear(terrain.heights, u, v, m.wrap)
+    u = (x - _F32(m.origin[0])) / _F32(cx) - _F32(0.5)
+    v = (z - _F32(m.origin[1])) / _F32(cz) - _F32(0.5)
+    return _F32(m.base) + _surface(terrain.heights, m, u, v)
 
 
 def default_viewer(terrain: HeightmapTerrain, height: float | None = None) -> tuple[int, int, int]:
@@ -520,13 +498,14 @@ def default_viewer(terrain: HeightmapTerrain, height: float | None = None) -> tu
     """
     terrain = _check_heightmap(terrain)
     m = terrain.mapping
+    cx, cz = m.cells
     if height is None:
         relief = float(np.max(np.asarray(terrain.heights)))
-        width = max(m.shape) * m.cell
+        width = max(m.shape[1] * cx, m.shape[0] * cz)
         height = min(max(8.0, relief / 2), max(8.0, width / 4))
     height = check_float("height", height, low=0)
-    x = math.floor(m.origin[0] + m.shape[1] * m.cell / 2)
-    z = math.floor(m.origin[1] + m.shape[0] * m.cell / 2)
+    x = math.floor(m.origin[0] + m.shape[1] * cx / 2)
+    z = math.floor(m.origin[1] + m.shape[0] * cz / 2)
     g = float(ground_height(terrain, x + 0.5, z + 0.5))
     top = math.ceil(g - 0.5)  # the first air voxel of the column
     return int(x), int(top + math.ceil(height)), int(z)

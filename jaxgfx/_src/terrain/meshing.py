@@ -30,14 +30,11 @@ __all__ = ["ClipBoxMesh", "seam_occupancy", "voxels_to_mesh", "weld_seam", "visi
 # --------------------------------------------------------------------------------------
 # Bit sets along x: rank and select (compaction for 3.4.4)
 # --------------------------------------------------------------------------------------
-
-
 # A box's voxels, its faces and its lattice corners are bit sets packed along x: bit b of
 # word [g, y, z] is x = 32 g + b.  Neighbours along y and z are then whole words and
 # along x a shift, so the face and used-corner sets come from a few word-wide bitwise
 # passes (N^3 / 32 words) instead of N^3 bool passes and an (N + 1)^3 scatter.  The
 # enumeration order (word-major, then bit) is deterministic; nothing relies on it.
-
 _U32 = jnp.uint32
 
 
@@ -75,8 +72,7 @@ def _inclusive_sum(x: jax.Array, width: int = 8) -> jax.Array:
     """Prefix sum of a 1-D int array, rows of ``width`` by doubling, then the row totals.
 
     XLA:CPU lowers ``jnp.cumsum`` to a reduce-window tree that costs O(128) adds per
-    element; this costs O(log width) plus the (8x shorter) totals: 196k words in
-    about 0.2 ms instead of 1.8 ms.
+    element; this costs O(log width) plus the (8x shorter) totals.
     """
     n = x.shape[0]
     if n <= width:
@@ -98,10 +94,37 @@ def _directory(words: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     return cnt, incl - cnt, incl[-1]
 
 
-def _select(words, cnt, start, q: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """(word, bit) of the ``q``-th set bit (q ascending); garbage past the total."""
-    w = jnp.searchsorted(start + cnt, q, side="right").astype(_I32)
-    w = jnp.minimum(w, words.shape[0] - 1)
+def _inclusive_max(x: jax.Array, width: int = 8) -> jax.Array:
+    """Running maximum of a 1-D int array: :func:`_inclusive_sum`'s scheme (not cummax)."""
+    n = x.shape[0]
+    if n <= width:
+        return jax.lax.cummax(x)
+    rows = -(-n // width)
+    y = jnp.pad(x, (0, rows * width - n)).reshape(rows, width)
+    s = 1
+    while s < width:
+        y = jnp.maximum(y, jnp.pad(y[:, :-s], ((0, 0), (s, 0))))
+        s *= 2
+    before = jnp.pad(_inclusive_max(y[:, -1], width)[:-1], (1, 0))
+    return jnp.maximum(y, before[:, None]).reshape(-1)[:n]
+
+
+def _select(words, cnt, start, count: int, search: bool = False) -> tuple[jax.Array, jax.Array]:
+    """(word, bit) of the ``q``-th set bit for ``q = 0 .. count - 1``; garbage past the total.
+
+    Word ``w`` holds set bits ``start[w] .. start[w] + cnt[w] - 1``: each non-empty word
+    writes its index at its first bit's slot and a running maximum carries it on (one
+    scatter, one prefix pass; ``search=True``: a binary search, ~18 dependent gathers
+    per slot).  Within the word a 5-step popcount bisection.
+    """
+    q = jnp.arange(count, dtype=_I32)
+    if search:
+        w = jnp.searchsorted(start + cnt, q, side="right").astype(_I32)
+        w = jnp.minimum(w, words.shape[0] - 1)
+    else:
+        wid = jnp.arange(words.shape[0], dtype=_I32)
+        slot = jnp.where(cnt > 0, start, count)
+        w = _inclusive_max(jnp.zeros((count,), _I32).at[slot].set(wid, mode="drop"))
     r = q - start[w]
     word = words[w]
     pos = jnp.zeros_like(q)
@@ -130,7 +153,7 @@ def _keep(flag: jax.Array, tree):
 
     XLA:CPU expands ``optimization_barrier`` before fusing, and then copies a long
     per-quad chain (select, decode, snap) into each of its many consumers: 8x the
-    work for the eight link slots of a quad (measured 5-8x slower).  A conditional
+    work for the eight link slots of a quad.  A conditional
     on a runtime flag cannot be fused through, so its result is materialised.
     """
     return jax.lax.cond(flag, lambda t: t, lambda t: jax.tree.map(jnp.zeros_like, t), tree)
@@ -251,7 +274,7 @@ def _cell_offset(scale: jax.Array) -> jax.Array:
     the sample.  A level-l voxel samples the same point p but stands for 2^l cells;
     drawing it as [p, p + 2^l] would put the level's surface on average
     (2^l - 1) / 2 voxels too high (and too far along +x, +z) -- a step at every seam
-    that grows with the level (the "slabs" and box outlines of issue 17).  Centring
+    that grows with the level (slabs and box outlines).  Centring
     the cube on the sample's cell, [p + 1/2 - 2^l / 2, p + 1/2 + 2^l / 2], makes every
     level an unbiased estimate of the same surface.
     """
@@ -329,6 +352,9 @@ def voxels_to_mesh(
     along x (32 voxels a word), compacted with a rank/select directory over the
     words; vertex ids are ranks in the used-corner set.  Cost: O(N^3 / 32) word work
     plus O(max_quads) per-quad work (so a capacity near the real quad count pays).
+    The packed occupancy, the face words and the used-corner words are each computed
+    once (:func:`_keep`): left to fusion, XLA:CPU recomputed the 32-plane packing
+    inside every gather that reads them.
 
     Args:
         box: the Clip-Box.
@@ -341,21 +367,36 @@ def voxels_to_mesh(
     Returns:
         :class:`ClipBoxMesh` (normals zero).
     """
+    return _voxels_to_mesh(box, max_quads=max_quads, max_vertices=max_vertices, seam=seam)
+
+
+def _voxels_to_mesh(
+    box: ClipBox,
+    *,
+    max_quads: int,
+    max_vertices: int | None = None,
+    seam: bool = True,
+    materialize: bool = True,
+    search: bool = False,
+) -> ClipBoxMesh:
+    """:func:`voxels_to_mesh`; ``materialize=False`` (sets left to fusion) and ``search=True``
+    are earlier designs that ``experiments.clipbox_table`` measures in the same run."""
+    keep = (lambda x: _keep(box.level >= 0, x)) if materialize else (lambda x: x)
+
     n = box.size
     m1 = n + 1
     vmax = max_quads + 16 * n if max_vertices is None else max_vertices
     occ = seam_occupancy(box.voxels) if seam else box.voxels
-    o = _pack_x(occ)  # (G, N, N)
+    o = keep(_pack_x(occ))  # (G, N, N)
     g = o.shape[0]
     # Faces between voxel p and p + e_d, one set per axis d, bit at p.
     fx = (o ^ _next_x(o)) & _low_bits(n - 1, g)
     fy = (o ^ _next(o, 1)).at[:, n - 1].set(0)
     fz = (o ^ _next(o, 2)).at[:, :, n - 1].set(0)
-    words = jnp.stack([fx, fy, fz]).reshape(-1)
+    words = keep(jnp.stack([fx, fy, fz]).reshape(-1))
     cnt, start, num_quads = _directory(words)
-    q = jnp.arange(max_quads, dtype=_I32)
-    qvalid = q < num_quads
-    w, b = _select(words, cnt, start, q)
+    qvalid = jnp.arange(max_quads, dtype=_I32) < num_quads
+    w, b = _select(words, cnt, start, max_quads, search=search)
     # Decode word (axis, g, y, z) and bit; the voxel below the face is solid or air.
     z, y = w % n, (w // n) % n
     gg, axis = (w // (n * n)) % g, w // (n * n * g)
@@ -380,7 +421,7 @@ def voxels_to_mesh(
         corners.append((jnp.stack(c, -1), own & qvalid))
     corners = _keep(num_quads >= 0, corners)
     center2 = jnp.stack([2 * base[d] + 1 - on[d] for d in range(3)], -1)
-    vwords = _used_corners(o, n, seam).reshape(-1)
+    vwords = keep(_used_corners(o, n, seam).reshape(-1))
     _, vstart, num_vertices = _directory(vwords)
     ids = [jnp.where(qvalid, _rank(vwords, vstart, *_corner_word(c, m1)), vmax) for c, _ in corners]
     ids = _keep(num_quads >= 0, ids)
@@ -480,8 +521,8 @@ def weld_seam(inner: ClipBoxMesh, outer: ClipBoxMesh) -> ClipBoxMesh:
     ring = jnp.any((c <= 1) | (c >= n_in - 1), axis=-1)
     ring &= jnp.arange(v_cap) < inner.num_vertices
     # Only ring vertices change, typically a few % of the capacity: the eight outer
-    # lookups per vertex run on the ring's compacted ids (19 -> 3.5 ms for a
-    # 128^3 CSG box), over every row only when the ring outgrows the compact list.
+    # lookups per vertex run on the ring's compacted ids, over every row only when
+    # the ring outgrows the compact list.
     cap = max(v_cap // _RING_SHARE, 1)
 
     def compact(_):

@@ -174,7 +174,7 @@ def blend_seam(
     step_w = jnp.where(free & (deg > 0), 0.8 / jnp.maximum(deg, 1.0), 0.0)
 
     # Only the band moves (about 9 % of the capacity for a 128^3 CSG box): relax its
-    # compacted rows (about 10 -> 5 ms there), every row only when the band outgrows it.
+    # compacted rows, every row only when the band outgrows them.
     v_cap = m.vertices.shape[0]
     cap = max(v_cap // _BAND_SHARE, 1)
 

@@ -8,7 +8,7 @@ and flat, with a smooth position-hashed detail term instead of a detail texture,
 every vertex gets its colour from its position and normal alone (no texture lookups)
 and the colours are continuous across Clip-Box levels.  :func:`render_terrain` draws
 the nested levels with these colours, one-sided sun plus sky light, distance fog that
-reaches the sky's horizon colour at the outer box, and the sky behind.
+fades into the sky behind each pixel by the outer box, and the sky itself.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ import numpy as np
 
 from jaxgfx._src.checks import check_float
 
-__all__ = ["terrain_colors", "render_terrain", "SKY_HORIZON", "SKY_ZENITH"]
+__all__ = ["terrain_colors", "render_terrain", "SKY_HORIZON", "SKY_ZENITH", "DETAIL_PERIOD"]
 
 _F32 = jnp.float32
 SKY_HORIZON = (0.80, 0.85, 0.90)
-"""The sky at the horizon, also the fog colour: far terrain fades into the sky."""
+"""The sky at the horizon; far terrain fades into the sky colour behind each pixel."""
 SKY_ZENITH = (0.32, 0.52, 0.82)
 
 _GRASS = (0.29, 0.40, 0.17)
@@ -40,19 +40,45 @@ def _smoothstep(lo: float, hi: float, x: jax.Array) -> jax.Array:
     return t * t * (3.0 - 2.0 * t)
 
 
-def _detail(p: jax.Array) -> jax.Array:
+DETAIL_PERIOD = 1000
+"""The detail field repeats every this many voxels on each axis: its waves have whole
+numbers of cycles per period, so it is computed from the integer world coordinates
+(reduced modulo the period in int32, as the terrain functions of Eq. 3.2 are) plus a
+small float offset, and two views a multiple of the period apart (SAW's modulus, a
+tiled map's period times 1000, 10^9) get the same colours, bit for bit."""
+
+# (cycles per period along x, y, z; phase) of each wave, and its weight
+_WAVES = (
+    ((18, 8, 11), 0.0, 1.0),
+    ((-14, 0, 9), 1.7, 1.0),
+    ((49, 32, -43), 4.1, 0.5),
+    ((59, 0, 37), 2.3, 0.5),
+)
+_BAND = 72  # strata: cycles per period along y (about 14 voxels apart)
+
+
+def _phase(origin: jax.Array, rel: jax.Array, k: tuple[int, int, int]) -> jax.Array:
+    """``2 pi (k . (origin + rel)) / DETAIL_PERIOD``: the integer part exact in int32.
+
+    Args:
+        origin: (3,) int32 world position; rel: (V, 3) float32 offsets from it.
+    """
+    o = jnp.remainder(jnp.asarray(origin, jnp.int32), DETAIL_PERIOD)
+    whole = jnp.remainder(k[0] * o[0] + k[1] * o[1] + k[2] * o[2], DETAIL_PERIOD)
+    frac = k[0] * rel[:, 0] + k[1] * rel[:, 1] + k[2] * rel[:, 2]
+    return (whole.astype(_F32) + frac) * _F32(2.0 * np.pi / DETAIL_PERIOD)
+
+
+def _detail(origin: jax.Array, rel: jax.Array) -> jax.Array:
     """A smooth pseudo-random field in [-1, 1] of world position (the detail texture's role).
 
-    Sums of sines at unrelated frequencies: continuous, so two levels' vertices at the
-    same place get the same value (no seam), and cheap on any backend.
+    Sums of waves at unrelated frequencies: continuous, so two levels' vertices at the
+    same place get the same value (no seam), cheap on any backend, and exact far from
+    the origin (see :data:`DETAIL_PERIOD`).
     """
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    n = (
-        jnp.sin(0.113 * x + 0.071 * z + 0.05 * y)
-        + jnp.sin(0.057 * z - 0.089 * x + 1.7)
-        + 0.5 * jnp.sin(0.31 * x - 0.27 * z + 0.2 * y + 4.1)
-        + 0.5 * jnp.sin(0.23 * z + 0.37 * x + 2.3)
-    )
+    n = jnp.zeros(rel.shape[:1], _F32)
+    for k, ph, w in _WAVES:
+        n = n + w * jnp.sin(_phase(origin, rel, k) + ph)
     return n / 3.0
 
 
@@ -63,6 +89,7 @@ def terrain_colors(
     height_range: tuple[float, float],
     snow_line: float | None = 0.8,
     rock_slope: tuple[float, float] = (0.3, 0.55),
+    origin=None,
 ) -> jax.Array:
     """Per-vertex terrain colour from height and slope: grass, earth, rock, snow.
 
@@ -73,12 +100,16 @@ def terrain_colors(
     position jitters the boundaries and the brightness so the bands do not look ruled.
 
     Args:
-        vertices: (V, 3) world positions in voxels (y up).
+        vertices: (V, 3) positions in voxels (y up) relative to ``origin``.
         normals: (V, 3) unit normals (zeros are treated as flat).
         height_range: (low, high) world y mapped to t = 0 and 1 (e.g. a height map's
             ``base`` and ``base + relief``).
         snow_line: t above which flat ground is snow; None for none.
         rock_slope: slopes (1 - n_y) where rock starts and is complete.
+        origin: (3,) int32 world position the vertices are relative to (a viewer or box
+            origin); None: the world origin (``vertices`` are world positions).  The
+            colours are a function of the integer world position plus the offset, so
+            they do not degrade far from the world origin.
     Returns:
         (V, 3) float32 RGB in [0, 1].
 
@@ -101,13 +132,19 @@ def terrain_colors(
     if not r1 > r0:
         raise ValueError(f"rock_slope must be (start, full) with start < full, got {rock_slope}")
 
-    d = _detail(v)
-    t = (v[:, 1] - lo) / (hi - lo) + 0.04 * d
+    o = jnp.zeros(3, jnp.int32) if origin is None else jnp.asarray(origin, jnp.int32)
+    if o.shape != (3,):
+        raise ValueError(f"origin must be (3,) integers, got shape {o.shape}")
+    d = _detail(o, v)
+    # world y - lo with the integer parts subtracted in int32
+    lo_i = int(np.floor(lo))
+    y = (o[1] - lo_i).astype(_F32) + (v[:, 1] - _F32(lo - lo_i))
+    t = y / (hi - lo) + 0.04 * d
     ny = jnp.where(jnp.sum(n * n, -1) > 0, n[:, 1], 1.0)
     slope = 1.0 - jnp.clip(ny, 0.0, 1.0) + 0.05 * d
     col = lambda c: jnp.asarray(c, _F32)  # noqa: E731
     soil = col(_GRASS) + (col(_EARTH) - col(_GRASS)) * _smoothstep(0.2, 0.7, t)[:, None]
-    band = 0.5 + 0.5 * jnp.sin(v[:, 1] * 0.45 + 2.0 * d)
+    band = 0.5 + 0.5 * jnp.sin(_phase(o, v, (0, _BAND, 0)) + 2.0 * d)
     rock = col(_ROCK) + (col(_ROCK_BAND) - col(_ROCK)) * (0.8 * band)[:, None]
     c = soil + (rock - soil) * _smoothstep(r0, r1, slope)[:, None]
     if snow_line is not None:
@@ -148,7 +185,7 @@ def render_terrain(
         anchor: (3,) integer world position the camera and vertices are relative to.
         height_range: (low, high) WORLD y for the colour bands.
         fog_distance: camera depth (voxels) where the fog reaches 95 %; the outer box's
-            half-width hides the box edge in the sky's horizon colour.  None: no fog.
+            half-width hides the box edge in the sky behind it.  None: no fog.
         light_dir: direction towards the sun.
         snow_line: as in :func:`terrain_colors`.
         rasterize_fn: a jitted ``jaxgfx.raster.rasterize`` (default: jit it here).
@@ -169,10 +206,12 @@ def render_terrain(
     # triangles, which draw nothing: frames of a flythrough then share a few compiled
     # shapes instead of compiling the rasterizer once per triangle count.
     v, n, f = _pad_pow2(v), _pad_pow2(n), _pad_pow2(f)
-    # world positions for the colours (float32: exact enough for colour far out too)
-    world = v + anchor.astype(np.float32)
     colors = _colors_jit(
-        world, n, height_range=tuple(float(h) for h in height_range), snow_line=snow_line
+        v,
+        n,
+        height_range=tuple(float(h) for h in height_range),
+        snow_line=snow_line,
+        origin=jnp.asarray(anchor, jnp.int32),
     )
     fn = rasterize_fn if rasterize_fn is not None else jax.jit(rasterize)
     out = fn(cam, jnp.asarray(v), jnp.asarray(f), jnp.concatenate([colors, jnp.asarray(n)], -1))
@@ -184,14 +223,14 @@ def render_terrain(
     sun = jnp.maximum(jnp.sum(nrm * light, -1, keepdims=True), 0.0)
     sky = 0.5 + 0.5 * nrm[..., 1:2]  # hemisphere light: facing up sees more sky
     lit = albedo * (0.7 * sun + 0.45 * sky)
-    horizon = jnp.asarray(SKY_HORIZON, _F32)
     hit = jnp.isfinite(out.depth)
+    # below the horizon, where no box reaches, the "ground" is the horizon colour
+    sky_frame = background(cam, horizon=SKY_HORIZON, zenith=SKY_ZENITH, ground=SKY_HORIZON)
     if fog_distance is None:
         color = lit
     else:
         z = jnp.where(hit, out.depth, 0.0) / fog_distance
         k = (1.0 - jnp.exp(-3.0 * z * z * z))[..., None]  # clear near, 95 % at fog_distance
-        color = lit * (1.0 - k) + horizon * k
-    # below the horizon, where no box reaches, the "ground" is the fog colour too
-    sky_frame = background(cam, horizon=SKY_HORIZON, zenith=SKY_ZENITH, ground=SKY_HORIZON)
+        # far terrain fades into the sky behind it, not into one colour: no grey cut-outs
+        color = lit * (1.0 - k) + sky_frame.color * k
     return Frame(jnp.where(hit[..., None], color, sky_frame.color), out.depth)

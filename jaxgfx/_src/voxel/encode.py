@@ -21,7 +21,13 @@ import numpy as np
 
 from jaxgfx._src.checks import check_int, static_field
 from jaxgfx._src.voxel.codec import MAX_DRAW, MAX_SKIP, pack_element, unpack_element
-from jaxgfx._src.voxel.voxset import Voxels, _check_shape, downsample_voxels, make_voxels
+from jaxgfx._src.voxel.voxset import (
+    Voxels,
+    _check_shape,
+    as_voxels,
+    downsample_voxels,
+    make_voxels,
+)
 
 __all__ = [
     "RLEVolume",
@@ -251,12 +257,18 @@ def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
     """Encodes surface voxels into the pointer map + RLE columns, with mip levels.
 
     Args:
-        vox: coloured voxels (normally only the surface, see :func:`surface_voxels`).
+        vox: coloured voxels (normally only the surface, see :func:`surface_voxels`); a
+            3-D occupancy array is taken as its surface voxels in the clay colour
+            (:func:`~jaxgfx._src.voxel.voxset.as_voxels`).
         levels: number of levels; level ``l`` is ``l`` times 2x down-sampled.
 
     Returns:
         The :class:`RLEVolume` (NumPy-backed leaves; ``jax.device_put`` it for speed).
+
+    Raises:
+        TypeError: ``vox`` is neither :class:`Voxels` nor a 3-D array.
     """
+    vox = as_voxels(vox)
     shape = _check_shape(vox.shape)
     levels = check_int("levels", levels, low=1)
     c = np.asarray(vox.coords)

@@ -25,7 +25,7 @@ from jaxgfx._src.voxel.volume import (
     resample_isotropic,
     turn_up,
 )
-from jaxgfx._src.voxel.voxset import Voxels, dense_to_voxels, make_voxels
+from jaxgfx._src.voxel.voxset import Voxels, as_voxels, dense_to_voxels, make_voxels
 
 __all__ = [
     "VOLUME_SUFFIXES",
@@ -385,9 +385,18 @@ def load_kv6(path: str) -> Voxels:
 
 
 def save_scene(path: str, vox: Voxels) -> None:
-    """Writes voxels to an ``.npz`` atomically (temp file in the same folder, then replace)."""
-    from jaxgfx._src.io import atomic_write
+    """Writes voxels to an ``.npz`` atomically (temp file in the same folder, then replace).
 
+    Args:
+        path: the ``.npz`` file.
+        vox: :class:`Voxels`; an :class:`~jaxgfx._src.voxel.encode.RLEVolume` is saved as
+            its level 0 (:func:`~jaxgfx._src.voxel.encode.decode_rle`), a 3-D occupancy
+            array as its surface voxels (:func:`~jaxgfx._src.voxel.voxset.as_voxels`).
+    """
+    from jaxgfx._src.io import atomic_write
+    from jaxgfx._src.voxel.encode import RLEVolume, decode_rle
+
+    vox = decode_rle(vox) if isinstance(vox, RLEVolume) else as_voxels(vox)
     with atomic_write(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(
@@ -396,10 +405,25 @@ def save_scene(path: str, vox: Voxels) -> None:
 
 
 def load_scene(path: str) -> Voxels:
-    """Reads voxels written by :func:`save_scene`."""
+    """Reads voxels written by :func:`save_scene`.
+
+    Raises:
+        ValueError: ``path`` is missing, a directory, or not an ``.npz`` of a scene (a mesh,
+            a volume or any other file is named as not a scene).
+    """
     if not os.path.exists(path):
         raise ValueError(f"scene: {path!r} not found")
-    with np.load(path) as z:
+    if os.path.isdir(path):
+        raise ValueError(f"scene: {path!r} is a directory, expected a scene .npz")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError):
+        z = None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(
+            f"scene: {path!r} is not a scene .npz (written by save_scene or 'jaxgfx voxelize')"
+        )
+    with z:
         try:
             return Voxels(
                 z["coords"].astype(np.int32),

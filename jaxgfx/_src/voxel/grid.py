@@ -64,6 +64,10 @@ def _map_column(rle, ix, iz, lev, off, sx, sz):
     """
     tx, tz = rle.tiles.shape
     xl, zl = sx[lev], sz[lev]
+    if (tx, tz) == (1, 1):
+        # One tile: no integer division (out-of-map cells get some entry, unused).
+        in_map = (ix >= 0) & (iz >= 0) & (ix < xl) & (iz < zl)
+        return in_map, rle.tiles[0, 0] >= 0, off[lev] + ix * zl + iz
     ti = jnp.floor_divide(ix, xl)
     tk = jnp.floor_divide(iz, zl)
     in_map = (ix >= 0) & (iz >= 0) & (ti < tx) & (tk < tz)

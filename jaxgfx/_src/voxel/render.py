@@ -22,12 +22,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.camera import Camera, focal_lengths
+from jaxgfx._src.camera import Camera, as_float32, focal_lengths, pixel_rays, validate_camera
 from jaxgfx._src.checks import check_float, check_int, static_field
+from jaxgfx._src.frames import BATCHING, per_frame
+from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
+from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import refine_hits, warp_lists
+from jaxgfx._src.voxel.wide import traverse_wide
 
 __all__ = [
     "RenderOutput",
@@ -128,6 +132,10 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
     return 2.0 * jnp.maximum(fx, fy) / pixels
 
 
+_TRAVERSALS = ("auto", "wide", "narrow")
+_BATCHINGS = BATCHING
+
+
 def _optional_int(name: str, value, low: int) -> int | None:
     return None if value is None else check_int(name, value, low=low)
 
@@ -172,6 +180,20 @@ class RenderSettings:
             agreement does not fall with distance; 0 = the thesis's spacing
             (:func:`~jaxgfx.raycast.screen_segments`).  It also raises the default
             ``num_planes`` by ``planes_per_voxel (X + Z)``.
+        traversal: ``"narrow"``: one cell per plane per loop step (thousands of
+            steps a frame, each cheap: XLA:CPU's fastest); ``"wide"``: a block of
+            cells per plane per step (tens of steps, each as wide as all planes:
+            what an accelerator needs, as each step is a kernel launch there);
+            ``"auto"`` (default): the first where the program is lowered for the
+            CPU, the second elsewhere (``jax.lax.platform_dependent``).
+        block_cells: wide traversal: major-axis columns per block (default 16).
+        block_elements: wide traversal: element slots per plane per step (None:
+            ``max(2 max_elements, block_cells, 8)``; at least two columns).
+        slots: wide traversal: planes stepped at once, a done plane's slot taking
+            the next plane (None: all planes every step, fewest steps).
+        batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
+            ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
+            ``"auto"`` (default: frames on the CPU, vector elsewhere).
 
     Raises:
         TypeError: a count that is not an int, an ``oversample`` that is not a number.
@@ -188,6 +210,11 @@ class RenderSettings:
     refine_budget: int | None = static_field(None)
     elements_per_step: int = static_field(4)
     planes_per_voxel: float = static_field(3.0)
+    traversal: str = static_field("auto")
+    block_cells: int = static_field(16)
+    block_elements: int | None = static_field(None)
+    slots: int | None = static_field(None)
+    batching: str = static_field("auto")
 
     def __post_init__(self):
         # Normalised to Python ints / floats: equal settings hash alike (one compile).
@@ -202,7 +229,14 @@ class RenderSettings:
             refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
             elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
             planes_per_voxel=check_float("planes_per_voxel", self.planes_per_voxel),
+            block_cells=check_int("block_cells", self.block_cells, low=1),
+            block_elements=_optional_int("block_elements", self.block_elements, 1),
+            slots=_optional_int("slots", self.slots, 1),
         )
+        if self.traversal not in _TRAVERSALS:
+            raise ValueError(f"traversal must be one of {_TRAVERSALS}, got {self.traversal!r}")
+        if self.batching not in _BATCHINGS:
+            raise ValueError(f"batching must be one of {_BATCHINGS}, got {self.batching!r}")
         if fields["planes_per_voxel"] < 0:
             raise ValueError(f"planes_per_voxel must be >= 0, got {fields['planes_per_voxel']}")
         if fields["oversample"] <= 0:
@@ -211,6 +245,7 @@ class RenderSettings:
             object.__setattr__(self, name, value)
 
 
+@in_32bit
 def render_rle(
     rle,
     cam: Camera,
@@ -222,10 +257,18 @@ def render_rle(
 
     ``jax.jit(render_rle)`` needs no static arguments (the :class:`RenderSettings`
     are static pytree metadata).  ``jax.vmap`` over a batched camera (same
-    resolution, :func:`~jaxgfx.camera.stack_cameras`) renders the views one after
-    another inside one program (a ``custom_vmap`` rule): bit-identical to a loop,
-    one compile, no slower per frame; shard the batch over devices to use more
-    cores (:func:`jaxgfx.sweep.sharded_renderer`).
+    resolution, :func:`~jaxgfx.camera.stack_cameras`) is one program (a
+    ``custom_vmap`` rule, :class:`RenderSettings` ``batching``): lowered for the
+    CPU it renders the views one after another (bit-identical to a loop, no slower
+    per frame; shard the batch over devices to use more cores,
+    :func:`jaxgfx.sweep.sharded_renderer`); lowered for an accelerator it renders
+    them as one wider frame, a batch taking about its slowest frame's dependent
+    loop steps.  ``traversal`` picks the one-cell walk (:mod:`.traverse`) on the CPU
+    and the wide-step walk (:mod:`.wide`) elsewhere.
+
+    The depth is differentiable w.r.t. the camera: the traversal's choices are
+    discrete (no gradient flows through them) and each hit pixel's depth carries
+    the derivative of its ray's entry into the level-0 voxel it hit.
 
     The defaults are the settings the acceptance test (agreement with the
     per-pixel 3-D DDA of :func:`reference_render`: depth within one voxel on
@@ -237,8 +280,7 @@ def render_rle(
     neighbouring voxel.  The defaults add (a) two planes per border pixel,
     placed so that pixel-centre planes are kept (:class:`Segments`), and more
     for a far scene, spaced by a third of a voxel at its far end
-    (``planes_per_voxel``; without them a bunny 900 voxels away agrees on 85 %
-    of pixels instead of 99.5 %), (b) an
+    (``planes_per_voxel``: without them the agreement falls with the distance), (b) an
     exact test of the pixel's own ray against the elements of the adjacent
     planes' texels (:func:`warp_lists`: only screen tiles that a drawn element
     covers are warped), and (c) a short exact re-walk
@@ -260,39 +302,88 @@ def render_rle(
 
     Returns:
         :class:`RenderOutput` with colour (H, W, 3), depth (H, W) and counters
-        (``refined``: pixels that asked for a re-walk).
+        (``refined``: pixels that asked for a re-walk; ``traversal_steps`` and
+        ``loop_iterations``: the dependent loop steps of the traversal and of the
+        whole frame, traversal + warp + re-walk).
     """
     s = RenderSettings() if settings is None else settings
+    if not isinstance(s, RenderSettings):
+        raise TypeError(f"settings must be a RenderSettings, got {type(s).__name__}")
+    if not isinstance(rle, RLEVolume):
+        raise TypeError(f"rle must be an RLEVolume (from encode_rle), got {type(rle).__name__}")
+    validate_camera(cam)
+    if max(cam.width, cam.height) >= HALF_LIMIT:
+        raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
+    if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
+        raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
     # NumPy buffers straight from encode_rle (closed over under jit, as users write it)
     # become constants here; device buffers pass through unchanged.
     rle = jax.tree_util.tree_map(jnp.asarray, rle)
-    frame = jax.custom_batching.custom_vmap(functools.partial(_render_frame, s))
-    frame.def_vmap(functools.partial(_frames_one_by_one, functools.partial(_render_frame, s)))
-    return frame(rle, cam, jnp.asarray(lod_distance, jnp.float32))
+    cam = as_float32(cam)
+    # The traversal picks voxels (discrete); the depth's derivative w.r.t. the
+    # camera is that of the hit voxel's box entry along the pixel's ray.
+    fixed = jax.tree_util.tree_map(jax.lax.stop_gradient, cam)
+    lod = jax.lax.stop_gradient(jnp.asarray(lod_distance, jnp.float32))
+    out = _frame_kernel(s)(rle, fixed, lod)
+    return out._replace(depth=_differentiable_depth(cam, out.depth))
 
 
-def _frames_one_by_one(fn, axis_size, in_batched, *args):
-    """vmap rule of :func:`render_rle`: the frames one after another (``lax.map``).
+def _differentiable_depth(cam: Camera, depth):
+    """``depth``, with the derivative w.r.t. ``cam`` of the hit voxel's entry along each ray.
 
-    The frame's loops stop early and skip idle plane chunks and re-walk
-    batches with ``cond``; batched by plain vmap every frame would run the
-    longest loop and every branch.  One frame at a time runs each frame's own
-    program, so a batch is bit-identical to a loop over the cameras, compiles
-    once and costs no more per frame.  Unbatched arguments (the scene) are
-    closed over, not copied per frame.
+    The hit point just past ``depth`` names the voxel; the slab test of the pixel's
+    ray against that unit box gives its entry ``t``, whose value is replaced by
+    ``depth`` (the same number up to rounding) and whose gradient is kept.  Misses
+    keep ``+inf`` and a zero gradient.
     """
-    del axis_size
-    flat, tree = jax.tree_util.tree_flatten(args)
-    flags = jax.tree_util.tree_leaves(in_batched)
+    hit = jnp.isfinite(depth)
+    t = jnp.where(hit, depth, 0.0)
+    origins, dirs = pixel_rays(cam, normalize=False)
+    o_fixed, d_fixed = jax.lax.stop_gradient((origins, dirs))
+    p = o_fixed + d_fixed * (t + 1e-3)[..., None]
+    lo = jnp.floor(p)
+    t_enter = jnp.full(depth.shape, -jnp.inf)
+    for k in range(3):
+        dk = dirs[..., k]
+        safe = jnp.where(jnp.abs(dk) < 1e-12, 1e-12, dk)
+        t0 = (lo[..., k] - origins[..., k]) / safe
+        t1 = (lo[..., k] + 1.0 - origins[..., k]) / safe
+        near = jnp.where(jnp.abs(dk) < 1e-12, -jnp.inf, jnp.minimum(t0, t1))
+        t_enter = jnp.maximum(t_enter, near)
+    t_enter = jnp.where(hit & jnp.isfinite(t_enter), t_enter, 0.0)
+    return jnp.where(hit, depth + (t_enter - jax.lax.stop_gradient(t_enter)), depth)
 
-    def one(batched):
-        it = iter(batched)
-        return fn(
-            *jax.tree_util.tree_unflatten(tree, [next(it) if b else x for x, b in zip(flat, flags)])
-        )
 
-    out = jax.lax.map(one, [x for x, b in zip(flat, flags) if b])
-    return out, jax.tree_util.tree_map(lambda _: True, out)
+def _render_auto(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
+    """One frame; ``traversal="auto"`` picks by the platform the program is lowered for.
+
+    XLA:CPU runs the one-cell walk faster; an accelerator pays per dependent step
+    (a kernel launch each), so it gets the wide traversal.  Only the chosen
+    branch is compiled.
+    """
+    if s.traversal != "auto":
+        return _render_frame(s, rle, cam, lod)
+    narrow = dataclasses.replace(s, traversal="narrow")
+    wide = dataclasses.replace(s, traversal="wide")
+    return jax.lax.platform_dependent(
+        rle,
+        cam,
+        lod,
+        cpu=functools.partial(_render_frame, narrow),
+        default=functools.partial(_render_frame, wide),
+    )
+
+
+@functools.cache
+def _frame_kernel(s: RenderSettings):
+    """:func:`_render_frame` with the shared batching rule (one kernel per settings).
+
+    On XLA:CPU a batch runs frame by frame: the frame's loops stop early and skip idle
+    plane chunks and re-walk batches with ``cond``, which a vectorized batch would run to the
+    longest frame and through every branch; one frame at a time is bit-identical to a loop
+    over the cameras.  Elsewhere the batch is one program (:func:`jaxgfx._src.frames.per_frame`).
+    """
+    return per_frame(functools.partial(_render_auto, s), s.batching)
 
 
 def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
@@ -300,10 +391,6 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     num_planes, max_steps, oversample = s.num_planes, s.max_steps, s.oversample
     buffer_size, refine_steps, neighbors = s.buffer_size, s.refine_steps, s.neighbors
     refine_budget, elements_per_step = s.refine_budget, s.elements_per_step
-    if max(cam.width, cam.height) >= HALF_LIMIT:
-        raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
-    if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
-        raise ValueError(f"rle shape {rle.shape} too large: height must be < 32768, z < 2^26")
     if num_planes is None:
         num_planes = default_num_planes(
             cam.width,
@@ -327,38 +414,79 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         levels=rle.levels,
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
-    pool, start, drawn, coverage, first, stats = traverse_lists(
+    wide = s.traversal == "wide"
+    if wide:
+        pool, start, drawn, coverage, first, stats, trav_steps = traverse_wide(
+            rle,
+            cam,
+            seg,
+            planes,
+            rows=rows,
+            lod_distance=lod,
+            buffer_size=buffer_size,
+            block_cells=s.block_cells,
+            block_elements=s.block_elements,
+            slots=s.slots,
+        )
+    else:
+        pool, start, drawn, coverage, first, stats, trav_steps = traverse_lists(
+            rle,
+            cam,
+            seg,
+            planes,
+            rows=rows,
+            max_steps=max_steps,
+            lod_distance=lod,
+            buffer_size=buffer_size,
+            elements_per_step=elements_per_step,
+            short_rows=cam.height,
+            pool_size=(
+                default_pool_size(cam.width, cam.height, oversample)
+                if s.pool_size is None
+                else s.pool_size
+            ),
+            # Chunks as wide as without the far-scene planes (a chunk's loop runs
+            # until its slowest plane is done): 64 chunks of the thesis budget.
+            chunks=max(
+                64,
+                -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64)),
+            ),
+            with_steps=True,
+        )
+    # The accelerator's form (every plane in every step) warps every busy tile in
+    # one step and re-walks every uncertain pixel in one batch: its dependent steps
+    # stay a few tens per frame.  Plane slots are the CPU's form: batched warp.
+    wide = wide and s.slots is None
+    color, depth, entered, warp_steps = warp_lists(
         rle,
         cam,
         seg,
-        planes,
-        rows=rows,
-        max_steps=max_steps,
-        lod_distance=lod,
-        buffer_size=buffer_size,
-        elements_per_step=elements_per_step,
-        short_rows=cam.height,
-        pool_size=(
-            default_pool_size(cam.width, cam.height, oversample)
-            if s.pool_size is None
-            else s.pool_size
-        ),
-        # Chunks as wide as without the far-scene planes (a chunk's loop runs
-        # until its slowest plane is done): 64 chunks of the thesis budget
-        # (32 were 1.3-1.7x slower on the tree, MR head and bunny; 128 no faster).
-        chunks=max(
-            64, -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64))
-        ),
-    )
-    color, depth, entered = warp_lists(
-        rle, cam, seg, pool, start, drawn, coverage, first, neighbors=neighbors
+        pool,
+        start,
+        drawn,
+        coverage,
+        first,
+        neighbors=neighbors,
+        batch_tiles=(1 << 30) if wide else None,
+        scan_width=8 if wide else 1,
+        with_steps=True,
     )
     refined = jnp.int32(0)
+    refine_steps_taken = jnp.int32(0)
     if refine_steps > 0:
         budget = (cam.width * cam.height) // 32 if refine_budget is None else refine_budget
+        batch = budget if wide else 1024
         color, depth, refined = refine_hits(
-            rle, cam, color, depth, steps=refine_steps, mask=~entered, budget=budget
+            rle,
+            cam,
+            color,
+            depth,
+            steps=refine_steps,
+            mask=~entered,
+            budget=budget,
+            batch=batch,
         )
+        refine_steps_taken = refine_steps * ((jnp.minimum(refined, budget) + batch - 1) // batch)
     total = jnp.sum(stats, axis=0)
     return RenderOutput(
         color,
@@ -371,6 +499,8 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             planes=jnp.sum(seg.count),
             refined=refined,
             refine_overflow=jnp.maximum(refined - budget, 0) if refine_steps > 0 else refined,
+            traversal_steps=trav_steps,
+            loop_iterations=trav_steps + warp_steps + refine_steps_taken,
         ),
     )
 

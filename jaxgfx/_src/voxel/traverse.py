@@ -1,77 +1,41 @@
-"""Rasterizing the ray buffer: per-plane traversal, projection, culling, drawing (thesis 4.5.4).
+"""Rasterizing the ray buffer one cell per step: per-plane traversal, projection, culling, drawing.
 
-Per plane, an exact 2-D DDA (Amanatides & Woo) walks the pointer map from the eye
-outwards (4.5.4.1; jumping from an empty cell over the empty square around it).
-The loop has the design card's form: ``lax.scan`` over fixed blocks of 4 steps with
-per-plane done masks inside (a done plane's step changes nothing), and a
-``lax.while_loop`` over the blocks that exits once every plane has left the map,
-reached the far limit or closed its floating horizon.  The early exit stays because
-the step count varies by orders of magnitude between planes and frames (a fixed
-``scan`` to the worst case would walk every plane across the whole map).  Measured
-(bunny R = 256 and tree 64^3, 512x384 2x1 AA, 3 cameras, best of 5 interleaved
-rounds, identical frames): blocks of 4 take 0.96-0.98x the time of one step per
-``while`` iteration, blocks of 16 1.02-1.07x (more wasted steps after the last
-plane is done).  Every RLE element
-of every visited column is projected *once* into the plane's ray-buffer column
-(4.5.4.2, Eq. 4.5) and culled by a floating horizon and a 1-bit coverage map
-(4.5.4.3).  The drawn elements are appended front to back to the plane's list, so
-a texel's writer is the first element covering its row (4.5.4.4; resolved for all
-texels by :mod:`.texels`, for the texels the screen reads by
+The one-cell walk of thesis 4.5.4 (XLA:CPU's default; :mod:`.wide` walks a block of
+cells per step).  Per plane, an exact 2-D DDA (Amanatides & Woo) walks the pointer
+map from the eye outwards (4.5.4.1; jumping from an empty cell over the empty
+square around it).  The loop has the design card's form: ``lax.scan`` over fixed
+blocks of 4 steps with per-plane done masks inside (a done plane's step changes
+nothing), and a ``lax.while_loop`` over the blocks that exits once every plane has
+left the map, reached the far limit or closed its floating horizon: the step count
+varies by orders of magnitude between planes and frames, so a fixed ``scan`` to the
+worst case would walk every plane across the whole map.  Every RLE element of every
+visited column is projected *once* into the plane's ray-buffer column (4.5.4.2,
+Eq. 4.5) and culled by a floating horizon and a 1-bit coverage map (4.5.4.3).  The
+drawn elements are appended front to back to the plane's list, so a texel's writer
+is the first element covering its row (4.5.4.4; resolved for all texels by
+:mod:`.texels`, for the texels the screen reads by
 :func:`~jaxgfx.raycast.warp_lists`).
 
-The frame's fixed cost follows the view, not the plane budget (issue 15 item 3):
-a chunk of planes draws into one chunk-sized list buffer, and only the elements
-drawn are copied into the frame's pool.  Per-plane lists of ``K`` slots for the
-whole budget (58 MB at 1024x384) plus a per-texel index array (23 MB) were a
-fresh allocation every frame, which on XLA:CPU cost more than the traversal of a
-small scene.
+The frame's fixed cost follows the view, not the plane budget: a chunk of planes
+draws into one chunk-sized list buffer, and only the elements drawn are copied into
+the frame's pool.
 
-Instances (issue 15 item 2; neither is in the thesis, both leave every drawn
-element as it was, bit for bit): a plane also stops once its undrawn rows can no
-longer meet the scene's height range ``[0, top]`` past the walk's t
-(:func:`_live_rows`; before, over an instance map every plane walked to the far
-edge for the rows above the horizon), and before each step a few cheap steps
+Two tests that leave every drawn element as it is (not in the thesis): a plane
+stops once its undrawn rows can no longer meet the scene's height range ``[0, top]``
+past the walk's t (:func:`_live_rows`), and before each step a few cheap steps
 (:func:`_free_step`, only a column's floor-to-top span projected) pass cells whose
-whole column falls on rows already drawn.  1 / 100 / 1600 instanced trees, 512x384
-2x1 AA, same run, CPU time per frame: 62 / 208 / 420 ms before, 65 / 178 / 306 ms
-after (6.7x -> 4.75x one tree); R = 256 bunnies 124 / 435 / 1079 -> 119 / 326 / 569
-ms (8.7x -> 4.8x; load 4-7, README).  The rest is the walk itself: the horizon
-rows see trees thousands of voxels away, and each LOD band costs about
-``lod_distance / 2`` cells per plane, whatever the cells hold.  A height skip
-over mip ancestors (every open ray above a coarse cell's top: jump the block) was
-tried and dropped: coarse mip cells round the crowns' tops up to the scene's top,
-so it never fired on the forest, and its reads made each step 2-3x dearer.
-
-Where a step's time goes (issue 15, session 12; 1600 trees, camera 1): ~2,000
-iterations of 95-plane steps plus their free steps.  Run on one core
-(``taskset``), the traversal takes the same time for 48- to 376-plane chunks
-(fewer iterations, each dearer in proportion), so a step's cost is per plane,
-not per op: XLA:CPU fuses cheap element-wise producers into every consumer, so
-values read by several fused ops were recomputed in each (:func:`_once` pins
-the rows and draw flags: 0.80x).  On two threads XLA splits the bigger fused ops
-(the W-word coverage masks, the list scatter) over both cores, and the idle
-worker spins: CPU time is ~2x wall time, and perfetto traces show those ops 5-10x
-dearer than on one core.  A coverage map kept as end words plus a one-bit-per-word
-summary (O(1) words per range instead of W) looked like half the frame in such a
-trace but was 1.2x slower on one core and no faster on two: dropped.  Fixed
-unrolled free steps instead of their loop: 1.9-3.2x slower (as inline ones were).
+whole column falls on rows already drawn.
 
 A step reads its ``elements_per_step`` elements directly, their heights from the
 running sums over the column's tail (:attr:`~jaxgfx.raycast.RLEVolume.tail_sums`,
-computed once at encoding); it used to decode every element of the column above
-them with two prefix sums, which XLA:CPU fused into about five of the step's ops
-(session 13, same frames, one process, interleaved, 512x384 2x1 AA): frames
-0.87x the time on ``untitled.vxl``, 0.92x on 1600 trees and the MR head, 0.97x
-on the R = 256 bunny, unchanged on the 64^3 tree.
+computed once at encoding).  Values read by several fused ops are pinned with
+:func:`_once` (XLA:CPU would recompute them in each).
 
 Every mask op of a step is as wide as the column's coverage map.  With 2x1 AA a
 column of the left and right segments has 2W rows, while the top and bottom
-segments' columns have H: chunks of only those run a second loop program with
-maps of ceil(H / 32) words (``short_rows``; 12 instead of 32 words at 512x384 2x1).
-Same lists, one process, interleaved (session 13): frames 0.77x the time on
-``untitled.vxl``, 0.86x on 1600 trees, 0.84x on the MR head, 0.92x on the tree.
-The split needs 16 words saved (:data:`_SPLIT_WORDS`): the second loop program
-is a second compile.
+segments' columns have H: chunks of only those run a second loop program with maps
+of ceil(H / 32) words (``short_rows``), when that saves :data:`_SPLIT_WORDS` words
+(the second loop program is a second compile).
 """
 
 from __future__ import annotations
@@ -258,7 +222,7 @@ def _plane_step(
     cov = cov | jax.lax.reduce(drawn, np.uint32(0), jax.lax.bitwise_or, (0,))
     # Each coverage word's first list entry to draw in it (not in the thesis): a
     # row's writer, the first entry covering it, comes at or after it, so the warp's
-    # search starts there, not at the list's head (bunny frames 0.80-0.95x).
+    # search starts there, not at the list's head.
     pos = nbuf + _prefix_sum(draw.astype(jnp.int32)) - 1
     word_first = jnp.minimum(
         carry.first, jnp.min(jnp.where(drawn != 0, pos[:, None], NO_ENTRY), axis=0)
@@ -353,6 +317,7 @@ def traverse_lists(
     pool_size: int | None = None,
     free_steps: int = 4,
     short_rows: int | None = None,
+    with_steps: bool = False,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
@@ -405,6 +370,8 @@ def traverse_lists(
             has (the camera height): chunks of only such planes run with coverage
             maps that long, when that saves at least ``_SPLIT_WORDS`` words
             (None: every chunk has ``rows``).  The same lists either way.
+        with_steps: also return the dependent loop steps taken (every chunk's
+            steps, free steps and copy steps, one after another).
 
     Returns:
         ``(pool (5, pool_size) int32, start (P,) int32, drawn (P,) int32, coverage
@@ -467,7 +434,7 @@ def traverse_lists(
         # in cache), and only the elements drawn are copied into the frame's
         # pool: per-plane lists of K slots for the whole frame cost a fresh
         # P K-word buffer per frame, more than the traversal of a small scene.
-        lists, pool, used, start, drawn, cov, word_first, stats = bufs
+        lists, pool, used, start, drawn, cov, word_first, stats, n_it = bufs
         base = order[i] * size
         part = jax.lax.dynamic_slice(padded, (base,), (size,))
         consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=nw))(
@@ -476,7 +443,7 @@ def traverse_lists(
         dest = jnp.arange(size, dtype=jnp.int32)[:, None]
 
         def one(c, _=None):
-            state, lists = c
+            state, lists, n_free = c
             if free_steps > 0:
                 # Its own loop: with the list buffer out of its carry.
                 # While any plane of the chunk passes a cell, at most
@@ -486,13 +453,14 @@ def traverse_lists(
                     s, go = free(consts, s)
                     return s, jnp.any(go), i + 1
 
-                state = jax.lax.while_loop(
+                state, _, taken = jax.lax.while_loop(
                     lambda f: f[1] & (f[2] < free_steps),
                     pass_cells,
                     (state, jnp.bool_(True), jnp.int32(0)),
-                )[0]
+                )
+                n_free = n_free + taken
             state, slot, words = step(consts, state)
-            return (state, lists.at[dest, :, slot].set(words, mode="drop")), None
+            return (state, lists.at[dest, :, slot].set(words, mode="drop"), n_free), None
 
         # The loop runs outside the vmap: its condition is "any plane still
         # going", so the per-plane done masks do the work.
@@ -505,7 +473,7 @@ def traverse_lists(
             # The design card's form: lax.scan over fixed blocks of steps (a
             # done plane's step changes nothing), the early exit between blocks.
             body = lambda c: jax.lax.scan(one, c, None, block_steps)[0]  # noqa: E731
-        state, lists = jax.lax.while_loop(going, body, (carry0, lists))
+        state, lists, n_free = jax.lax.while_loop(going, body, (carry0, lists, jnp.int32(0)))
         nbuf = state.nbuf
         # The chunk's lists, back to back from the pool's first free slot.
         kept = jnp.minimum(nbuf, K)
@@ -536,6 +504,8 @@ def traverse_lists(
                 jnp.pad(state.first, ((0, 0), (0, n_words - nw)), constant_values=NO_ENTRY),
             ),
             put(stats, st),
+            # Dependent loop steps: the chunk's steps, its free steps and its copy steps.
+            n_it + state.it[0] + n_free + (jnp.max(stored) + 7) // 8,
         )
 
     bufs = (
@@ -547,10 +517,12 @@ def traverse_lists(
         jnp.zeros((Pp, n_words), jnp.uint32),
         jnp.full((Pp, n_words), NO_ENTRY, jnp.int32),
         jnp.zeros((Pp, 4), jnp.int32),
+        jnp.int32(0),
     )
     outs = bufs
     for nw, mine in groups:
         order = jnp.nonzero(mine, size=n_chunks, fill_value=0)[0]
         outs = jax.lax.fori_loop(0, jnp.sum(mine.astype(jnp.int32)), chunk_fn(order, nw), outs)
-    pool, per_plane = outs[1], outs[3:]
-    return (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
+    pool, per_plane, n_it = outs[1], outs[3:8], outs[8]
+    out = (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
+    return out + (n_it,) if with_steps else out

@@ -23,6 +23,7 @@ __all__ = [
     "make_voxels",
     "surface_mask",
     "dense_to_voxels",
+    "as_voxels",
     "voxels_to_dense",
     "surface_voxels",
     "crop_voxels",
@@ -115,19 +116,68 @@ def surface_mask(occupancy: np.ndarray) -> np.ndarray:
     return occ & ~inner
 
 
-def dense_to_voxels(occupancy: np.ndarray, colors: np.ndarray, *, surface: bool = True) -> Voxels:
+def dense_to_voxels(occupancy, colors=None, *, surface: bool = True) -> Voxels:
     """Dense grid -> :class:`Voxels`, keeping only surface voxels by default.
 
     Args:
-        occupancy: (X, Y, Z) bool.
-        colors: (X, Y, Z, 3) uint8 (or broadcastable).
+        occupancy: (X, Y, Z) bool (other dtypes: non-zero is solid).
+        colors: (X, Y, Z, 3) uint8 RGB, or anything that broadcasts to it (one (3,)
+            colour for all); None: the clay colour of ``voxelize_mesh`` (``CLAY``).
         surface: drop voxels that have no empty 6-neighbour.
     """
-    occ = np.asarray(occupancy, bool)
+    occ = np.asarray(occupancy)
+    if occ.ndim != 3:
+        raise ValueError(f"occupancy must be 3-D (X, Y, Z), got shape {occ.shape}")
+    occ = occ.astype(bool)
+    if colors is None:
+        from jaxgfx._src.voxel.voxelize import CLAY
+
+        colors = np.asarray(CLAY, np.uint8)
+    try:
+        np.broadcast_to(np.asarray(colors), occ.shape + (3,))
+    except ValueError:
+        raise ValueError(
+            f"colors must broadcast to {occ.shape + (3,)} (one RGB per voxel, or one for "
+            f"all), got shape {np.shape(colors)}"
+        ) from None
     mask = surface_mask(occ) if surface else occ
     idx = np.argwhere(mask)
     col = np.broadcast_to(np.asarray(colors, np.uint8), occ.shape + (3,))[mask]
     return make_voxels(idx, col, occ.shape)
+
+
+def as_voxels(value, name: str = "vox") -> Voxels:
+    """``value`` as :class:`Voxels`: Voxels pass, a 3-D occupancy array is converted.
+
+    A dense (X, Y, Z) array (bool, or non-zero = solid) becomes its surface voxels in the
+    clay colour (:func:`dense_to_voxels`); anything else is refused with a ``TypeError``
+    that names the functions making :class:`Voxels`.
+
+    Args:
+        value: :class:`Voxels` or a 3-D array.
+        name: the argument's name in the error message.
+    """
+    if isinstance(value, Voxels):
+        return value
+    if isinstance(value, tuple) and len(value) == 3 and not hasattr(value, "_fields"):
+        coords, colors, shape = value
+        return Voxels(np.asarray(coords), np.asarray(colors), tuple(shape))
+    if hasattr(value, "level_shapes"):
+        raise TypeError(
+            f"{name} is an RLEVolume (already encoded); decode_rle(rle) gives its Voxels"
+        )
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        if np.ndim(value) == 3:
+            return dense_to_voxels(np.asarray(value))
+        raise TypeError(
+            f"{name} must be Voxels or a 3-D occupancy array (X, Y, Z), got an array of "
+            f"shape {np.shape(value)}; make_voxels(coords, colors, shape) builds Voxels "
+            "from coordinates"
+        )
+    raise TypeError(
+        f"{name} must be Voxels (from make_voxels, dense_to_voxels, voxelize_mesh, "
+        f"load_scene, ...) or a 3-D occupancy array, got {type(value).__name__}"
+    )
 
 
 def voxels_to_dense(vox: Voxels) -> tuple[np.ndarray, np.ndarray]:

@@ -25,8 +25,7 @@ _TINY = 1e-6
 # Ray-buffer rows a column span's projection is widened by in the free step's
 # test: an element inside the span has other corner slopes, and their projection
 # may land a rounding error (~1e-4 rows at 1024-row columns) outside the span's.
-# A whole row, as before, let through every cell whose column merely touched an
-# open row.
+# A whole row would let through every cell whose column merely touches an open row.
 _ROW_EPS = 0.01
 
 
@@ -53,8 +52,7 @@ def _once(x):
     coverage update, the floating horizon and the list slots) is recomputed in
     each, from the element's projection on.  A reduce is never fused into more
     than one consumer: a ``min`` with the type's largest value pins ``x`` in
-    memory.  Measured on the traversal alone, one core, 1600 trees: 0.80x the
-    time (rows and draw flags of a step, rows of a free step), identical lists.
+    memory.
     """
     top = True if x.dtype == jnp.bool_ else jnp.iinfo(x.dtype).max
     return jnp.min(jnp.stack([x, jnp.full_like(x, top)], axis=-1), axis=-1)
@@ -259,18 +257,6 @@ def _free_step(
     (hidden trunks and crowns, gaps), and they cost a few reads each instead
     of a full step.  Other cells, a column part-way done (``k > 0``) and done
     planes are left unchanged.
-
-    The span's rows were one row wider on each side until session 14: in a
-    forest most columns border an open row, so 80 % of the full steps (1600
-    trees) drew nothing.  With a 0.01-row margin: 0.62x the full steps there,
-    0.78x on the R = 256 bunny; frames identical; one core, interleaved, frame
-    time 0.77x (1600 trees and 1600 bunnies), 0.84x (``untitled.vxl``), 0.90x
-    (bunny), 0.95-0.98x (tree, MR head).  Testing the first element and the hull
-    of the rest as two spans as well cut the full steps a further 0.94x (trees)
-    and 0.87x (bunny), but cost more than it saved (1.05-1.3x the frame): dropped.
-    So did a wide free step testing the next 4 cells of the plain DDA at once (found
-    by plain steps, passed as a run): identical frames, 1.21x the frame on 1600
-    trees, 1.13x on the bunny (two free iterations per step instead of four).
     """
     L, off, sx, sy, sz = _level_tables(rle)
     _, _, forward = camera_basis(cam)

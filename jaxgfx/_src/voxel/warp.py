@@ -176,8 +176,8 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     cand_t = candidate_t(*lookup(offs)[::2])  # (2 neighbors + 1, H, W)
     best_t = jnp.min(cand_t, axis=0)
     best_d = offs[jnp.argmin(cand_t, axis=0), 0, 0]
-    # Keep only the chosen plane offset and look it up again: carrying the
-    # candidate's index and depth together makes XLA:CPU ~10x slower here.
+    # Keep only the chosen plane offset and look it up again: XLA:CPU runs the
+    # warp far slower carrying the candidate's index and depth together.
     best_d = jax.lax.optimization_barrier(best_d)
     hit, idx, box = lookup(best_d)
     t_enter, t_exit = _box_hit(box, origins, dirs)
@@ -213,6 +213,9 @@ def warp_lists(
     *,
     neighbors: int = 1,
     tile: int = 8,
+    batch_tiles: int | None = None,
+    scan_width: int = 1,
+    with_steps: bool = False,
 ):
     """:func:`warp_ray_buffer` from the unresolved lists, touching only covered pixels.
 
@@ -225,8 +228,7 @@ def warp_lists(
     plane's list front to back for the first element covering the row, from the
     first entry that drew in the row's coverage word when ``first`` is given
     (a row no entry drew is skipped), so neither the per-texel index array nor
-    the coverage trees are built.  Starting at the word's entry: 0.70-0.78x the
-    warp's time on the R = 256 bunny (512x384 2x1), the same frames.
+    the coverage trees are built.
 
     Args:
         pool, start, drawn, coverage: the lists (``(5, N)`` words, each plane's
@@ -237,10 +239,17 @@ def warp_lists(
             its head.  The same frame either way.
         neighbors: static, as in :func:`warp_ray_buffer`.
         tile: static screen tile side in pixels (speed only).
+        batch_tiles: static tiles warped per loop step (None: ``4096 / tile^2``;
+            at least the screen's tile count: every busy tile in one step, so the
+            warp's dependent steps are one list scan).
+        scan_width: static list entries a pixel tests per loop step (the same
+            frame; fewer, wider steps).
+        with_steps: also return the dependent loop steps taken (list-scan steps
+            summed over the batches).
 
     Returns:
         ``(color (H, W, 3), depth (H, W), entered (H, W) bool)`` as
-        :func:`warp_ray_buffer`.
+        :func:`warp_ray_buffer`, and ``steps`` () int32 with ``with_steps``.
     """
     P, cap = coverage.shape[0], pool.shape[1]
     n_words = coverage.shape[1]
@@ -270,14 +279,15 @@ def warp_lists(
     n_tiles = ty * tx
     covered = jnp.pad(covered, ((0, ty * tile - H), (0, tx * tile - W)))
     busy = jnp.any(covered.reshape(ty, tile, tx, tile), axis=(1, 3)).reshape(-1)
-    batch = max(1, 4096 // (tile * tile))
+    batch = max(1, 4096 // (tile * tile)) if batch_tiles is None else min(batch_tiles, n_tiles)
     n_batches = -(-n_tiles // batch)
     ids = jnp.nonzero(busy, size=n_batches * batch, fill_value=n_tiles)[0]
     n_busy = jnp.sum(busy.astype(jnp.int32))
     right, up, forward = camera_basis(cam)
     ar = jnp.arange(tile, dtype=jnp.int32)
 
-    def warp_batch(b, bufs):
+    def warp_batch(b, carry):
+        bufs, steps = carry
         tid = jax.lax.dynamic_slice(ids, (b * batch,), (batch,))
         y = (tid // tx * tile)[:, None, None] + ar[None, :, None]
         x = (tid % tx * tile)[:, None, None] + ar[None, None, :]
@@ -301,17 +311,20 @@ def warp_lists(
 
         # The first list element covering the row (lists run front to back).  The
         # scan stops once no pixel of the batch is still looking, not at the longest
-        # list's end (bunny R = 256, 512x384 2x1: 1350 -> 1004 steps a frame).
+        # list's end.
+        # Each step tests scan_width entries, in list order.
         def scan_list(state):
             step, entry, _ = state
-            j = j0 + step
-            r0, r1 = unpack_drawn_rows(jnp.take(flat, base + (WORD_ROWS * cap + j), mode="clip"))
-            found = (entry == none) & (j < n) & (r0 <= row) & (row < r1)
-            entry = jnp.where(found, j, entry)
-            return step + 1, entry, jnp.any((entry == none) & (j + 1 < n))
+            j = j0 + step * scan_width
+            for u in range(scan_width):
+                at = base + (WORD_ROWS * cap + j + u)
+                r0, r1 = unpack_drawn_rows(jnp.take(flat, at, mode="clip"))
+                found = (entry == none) & (j + u < n) & (r0 <= row) & (row < r1)
+                entry = jnp.where(found, j + u, entry)
+            return step + 1, entry, jnp.any((entry == none) & (j + scan_width < n))
 
         init = (jnp.int32(0), jnp.full(n.shape, none), jnp.any(j0 < n))
-        entry = jax.lax.while_loop(lambda s: s[2], scan_list, init)[1]
+        taken, entry, _ = jax.lax.while_loop(lambda s: s[2], scan_list, init)
         hit = entry < none
         idx = base + jnp.where(hit, entry, 0)
         word = lambda k, i: jnp.take(flat, i + k * cap, mode="clip")  # noqa: E731
@@ -330,23 +343,27 @@ def warp_lists(
         )
         out = (color, depth, jnp.any(entered, axis=0))
         # Tile ids past the busy ones are n_tiles: dropped.
-        return tuple(
+        bufs = tuple(
             buf.at[tid].set(v.reshape((batch,) + buf.shape[1:]), mode="drop")
             for buf, v in zip(bufs, out)
         )
+        return bufs, steps + taken
 
     bufs = (
         jnp.zeros((n_tiles, tile * tile, 3), jnp.float32),
         jnp.full((n_tiles, tile * tile), jnp.inf, jnp.float32),
         jnp.zeros((n_tiles, tile * tile), bool),
     )
-    bufs = jax.lax.fori_loop(0, (n_busy + batch - 1) // batch, warp_batch, bufs)
+    bufs, steps = jax.lax.fori_loop(
+        0, (n_busy + batch - 1) // batch, warp_batch, (bufs, jnp.int32(0))
+    )
 
     def image(buf):
         img = buf.reshape((ty, tx, tile, tile) + buf.shape[2:]).swapaxes(1, 2)
         return img.reshape((ty * tile, tx * tile) + buf.shape[2:])[:H, :W]
 
-    return tuple(image(b) for b in bufs)
+    out = tuple(image(b) for b in bufs)
+    return out + (steps,) if with_steps else out
 
 
 # ---------------------------------------------------------------------------
@@ -415,6 +432,7 @@ def refine_hits(
     margin: float = 2.0,
     mask=None,
     budget: int | None = None,
+    batch: int = 1024,
 ):
     """Applies :func:`refine_pixel` to pixels with a hit in their 3x3 neighbourhood.
 
@@ -426,6 +444,8 @@ def refine_hits(
         budget: static; if set, only the first ``budget`` selected pixels (row
             major) are re-walked, gathered into one compact batch, so the cost
             is ``budget`` walks instead of ``H W``.
+        batch: static pixels walked together; batches no pixel asked for are
+            skipped (the walks of a frame take ``steps`` dependent steps per batch).
 
     Returns:
         ``(color, depth, selected)`` with exact hits where the short walk found
@@ -457,10 +477,10 @@ def refine_hits(
             z = jnp.zeros(part.shape, jnp.int32)
             return jnp.zeros(part.shape, bool), z.astype(jnp.float32), z
 
-        # Walk in batches of 1024 and skip the batches no pixel asked for, so
-        # the cost follows the number of uncertain pixels, not the budget.
+        # Walk in batches and skip the batches no pixel asked for, so the cost
+        # follows the number of uncertain pixels, not the budget.
         outs = [
-            jax.lax.cond(asked > a, walk, skip, idx[a : a + 1024]) for a in range(0, budget, 1024)
+            jax.lax.cond(asked > a, walk, skip, idx[a : a + batch]) for a in range(0, budget, batch)
         ]
         found, t, cidx = (jnp.concatenate([o[k] for o in outs]) for k in range(3))
     dest = jnp.where(found, idx, n)
