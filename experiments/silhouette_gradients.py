@@ -209,8 +209,10 @@ class Probe:
         self.image = jax.jit(aa)
         self.ss_image = jax.jit(ss)
         self.raw_area = jax.jit(raw)
-        self._aa = jax.jit(lambda p, t: image_sums(aa(p), t))
-        self._ss = jax.jit(lambda p, t: image_sums(ss(p), t))
+        # The sums from the jitted images: one compile of each renderer serves both.
+        sums = jax.jit(image_sums)
+        self._aa = lambda p, t: sums(self.image(p), t)
+        self._ss = lambda p, t: sums(self.ss_image(p), t)
         self._jac = jax.jit(jax.jacrev(lambda p, t: image_sums(aa(p), t)))
         self._speed = jax.jit(lambda p, u: jax.jvp(screen, (p,), (u,))[1])
         self.target = jnp.zeros((scene.cam.height, scene.cam.width), jnp.float32)

@@ -19,6 +19,20 @@ DATA = Path(
 os.environ.setdefault("JAXGFX_CACHE_DIR", tempfile.mkdtemp(prefix="jaxgfx-test-cache-"))
 
 
+# Modules whose tests run for tens of seconds each (subprocesses, the experiments' --quick runs),
+# scheduled first: with two xdist workers stealing work (--dist worksteal), a long test started
+# last would leave one worker idle at the end of the run.
+SLOW_FIRST = ("test_experiments.py", "test_sweep.py", "test_showcase.py", "test_cli.py")
+
+
+def pytest_collection_modifyitems(items):
+    def rank(item):
+        name = item.path.name
+        return SLOW_FIRST.index(name) if name in SLOW_FIRST else len(SLOW_FIRST)
+
+    items.sort(key=rank)  # stable: collection order within each rank
+
+
 @pytest.fixture(autouse=True)
 def cache_calls(tmp_path, monkeypatch):
     """Keeps in-process ``jaxgfx.cli.main`` away from the real cache and JAX's global settings.
