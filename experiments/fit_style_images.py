@@ -309,7 +309,9 @@ def main(argv=None) -> int:
     ap.add_argument("--lr", type=float, default=0.03, help="Adam's peak learning rate")
     ap.add_argument("--sgd-lr", type=float, default=0.2, help="SGD's peak learning rate")
     ap.add_argument(
-        "--optimizers", default="adam,sgd", help="comma-separated: adam (the default), sgd"
+        "--optimizers",
+        default=None,
+        help="comma-separated: adam (the library's optimizer), sgd (default both; --quick adam)",
     )
     ap.add_argument("--every", type=int, default=25, help="score the style every this many steps")
     ap.add_argument("--weights", default="1,1", help="silhouette,depth loss weights")
@@ -322,7 +324,8 @@ def main(argv=None) -> int:
     )
     args = ap.parse_args(argv)
     args.steps = args.steps or (20 if args.quick else 500)
-    args.optimizers = [o.strip() for o in args.optimizers.split(",") if o.strip()]
+    optimizers = args.optimizers or ("adam" if args.quick else "adam,sgd")
+    args.optimizers = [o.strip() for o in optimizers.split(",") if o.strip()]
     if not args.optimizers or set(args.optimizers) - {"adam", "sgd"}:
         ap.error(f"--optimizers: choose from adam, sgd, got {args.optimizers!r}")
     w, h = map(int, (args.size or ("64x48" if args.quick else "256x192")).split("x"))

@@ -180,9 +180,9 @@ def test_kernels_under_x64_equal_the_32_bit_results(rle):
     t, p, n, j, w = _lbs_args()
     t = t + rng.normal(size=t.shape).astype(np.float32) * 0.1
     rcam = look_at([40.0, 20.0, -30.0], [8.0, 8.0, 8.0], 50.0, 16, 12, 0.5, 200.0)
-    ref = (
-        rasterize(CAM, V, F),
-        raycast.render_rle(rle, rcam),
+    ref = (  # jitted: an eager call compiles its loops op by op, at every call
+        jax.jit(rasterize)(CAM, V, F),
+        jax.jit(raycast.render_rle)(rle, rcam),
         skin.linear_blend_skinning(t, p, n, j, w),
         skin.dual_quaternion_skinning(t, p, n, j, w),
         terrain.sample_terrain(
