@@ -20,8 +20,9 @@ os.environ.setdefault("JAXGFX_CACHE_DIR", tempfile.mkdtemp(prefix="jaxgfx-test-c
 
 
 # Modules whose tests run for tens of seconds each (subprocesses, the experiments' --quick runs),
-# scheduled first: with two xdist workers stealing work (--dist worksteal), a long test started
-# last would leave one worker idle at the end of the run.
+# scheduled first.  xdist gives each worker whole modules (--dist loadfile), so a module's
+# shared jitted functions compile once, not once per worker; a long module started last would
+# leave the other worker idle at the end of the run.
 SLOW_FIRST = ("test_experiments.py", "test_sweep.py", "test_showcase.py", "test_cli.py")
 
 
