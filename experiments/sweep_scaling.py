@@ -133,8 +133,10 @@ def main(argv=None) -> int:
         fr = composite([background(cam), render_mesh_pass(cam, mp)])
         return {"color": to_uint8(fr.color), "depth": fr.depth}
 
+    spins = 20_000 if args.quick else 200_000
+
     def spin(x):  # control: sequential work on 64 floats, too small for intra-op threads
-        return jax.lax.fori_loop(0, 200000, lambda i, x: jnp.sin(x) * 1.0001 + 0.01, x)
+        return jax.lax.fori_loop(0, spins, lambda i, x: jnp.sin(x) * 1.0001 + 0.01, x)
 
     cpus = sorted(_allowed())
     n_dev = len(jax.devices())

@@ -52,7 +52,8 @@ def _check_placements(demo):
 
 
 def test_demo_objects_stand_on_procedural_ground(tmp_path):
-    demo = build_demo(32, 24, key=jax.random.key(0), data=tmp_path)  # an empty folder: no data
+    # The demo command's default scene (64x48, seed 0, no data), as the CLI test below renders it
+    demo = build_demo(64, 48, key=jax.random.key(0), data=tmp_path)  # an empty folder: no data
     assert "procedural" in demo.description
     assert demo.credits == ()  # nothing of the shared data was drawn: nothing to credit
     names = {p.name for p in demo.placements}
