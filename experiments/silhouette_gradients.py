@@ -121,22 +121,10 @@ def fox_scene(width=128, height=96) -> Scene:
     return framed("fox", np.asarray(fox.vertices), fox.faces, width, height, [1.0, 0.4, -0.6])
 
 
-def rotation_matrix(w):
-    """Rodrigues' rotation by the vector ``w`` (3,), smooth at 0."""
-    t2 = jnp.dot(w, w)
-    small = t2 < 1e-8
-    safe = jnp.where(small, 1.0, t2)
-    t = jnp.sqrt(safe)
-    a = jnp.where(small, 1.0 - t2 / 6.0, jnp.sin(t) / t)
-    b = jnp.where(small, 0.5 - t2 / 24.0, (1.0 - jnp.cos(t)) / safe)
-    k = jnp.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    return jnp.eye(3) + a * k + b * (k @ k)
-
-
 def moved(scene: Scene, p):
     """The camera and the vertices after motion ``p`` (N_PARAMS,)."""
     c = jnp.asarray(scene.center, jnp.float32)
-    rel = (jnp.asarray(scene.vertices) - c) @ rotation_matrix(p[3:6]).T
+    rel = (jnp.asarray(scene.vertices) - c) @ skin.axis_angle_to_matrix(p[3:6]).T
     verts = c + jnp.exp(p[6]) * rel + p[:3]
     cam = dataclasses.replace(
         scene.cam,
