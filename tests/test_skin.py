@@ -599,6 +599,9 @@ def test_cli_skin_writes_image(tmp_path, capsys):
     assert main(argv) == 0
     img = iio.imread(tmp_path / "skin.png")
     assert img.shape == (20, 24, 3) and img.min() < 250  # something was drawn
+    # --out naming a .png writes that file, as the other commands do
+    assert main(argv[:-1] + [str(tmp_path / "arm.png")]) == 0
+    assert np.array_equal(iio.imread(tmp_path / "arm.png"), img)
     assert main(["skin", "--size", "0x3", "--out", str(tmp_path)]) == 2
     assert "error: argument --size" in capsys.readouterr().err
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -89,7 +90,9 @@ def register(subparsers) -> None:
         "spline (default: b_Tail01,b_Tail02,b_Tail03)",
     )
     p.add_argument("--size", type=parse_size, default=(320, 320), help="WxH (default 320x320)")
-    p.add_argument("--out", default="skin_out", help="output directory (writes skin.png)")
+    p.add_argument(
+        "--out", default="skin_out", help="output .png, or a directory (writes skin.png in it)"
+    )
     p.add_argument(
         "--depth",
         default=None,
@@ -187,8 +190,11 @@ def _arm_mesh(args, style_name: str):
 
 
 def run(args) -> int:
-    """Handler: writes ``skin.png`` (and ``--depth``) and prints the deformation time."""
-    out_dir = check_out_dir("--out", args.out)
+    """Handler: writes the image (and ``--depth``) and prints the deformation time."""
+    if Path(args.out).suffix.lower() == ".png":  # a file, as the other commands' --out
+        path = check_out_file("--out", args.out, (".png",))
+    else:
+        path = check_out_dir("--out", args.out) / "skin.png"
     depth_path = check_out_file("--depth", args.depth, (".npy",)) if args.depth else None
     check_image(args.size, PIXEL_BYTES)
     style_name = _check_args(args)
@@ -214,7 +220,6 @@ def run(args) -> int:
     out = jax.jit(rasterize)(cam, pos, jnp.asarray(faces), nrm)
     albedo = jnp.broadcast_to(jnp.array([0.85, 0.6, 0.45]), out.color.shape)
     img = jnp.where((out.tri_id >= 0)[..., None], lambert(out.color, albedo), 1.0)
-    path = out_dir / "skin.png"
     with writing("--out", path):
         save_png(path, np.asarray(img))
     depth = np.asarray(out.depth)
