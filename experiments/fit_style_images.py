@@ -37,7 +37,6 @@ import optax
 from experiments.common import DATA, machine, markdown_table, write_table
 from jaxgfx import skin
 from jaxgfx.camera import look_at, stack_cameras
-from jaxgfx.silhouette import silhouette_edges
 
 LIMB_RADIUS = 0.22  # demo_arm's radius at its root
 FOX = DATA / "rigs" / "fox.glb"
@@ -144,12 +143,6 @@ def vertex_errors(skin_fn, poses, held_out, radius, subset):
     return errors
 
 
-def mesh_edges(skin_fn, init, poses, faces):
-    """Edge topology with split vertices welded (the Fox stores three vertices per face)."""
-    pose0 = jax.tree_util.tree_map(lambda a: a[0], poses)
-    return silhouette_edges(faces, np.asarray(jax.jit(skin_fn)(init, pose0)))
-
-
 def make_optimizer(name, lr, steps):
     """``adam``: :func:`jaxgfx.skin.fit_style_images`' default; ``sgd``: plain gradient descent
     (no momentum) with the same cosine decay."""
@@ -182,7 +175,7 @@ def fit_curve(loss_fn, init, optimizer, steps, every, score):
 
 def run_case(name, problem, truth, init, args, weights):
     skin_fn, poses, faces, cams, radius, subset, held_out = problem
-    edges = jnp.asarray(mesh_edges(skin_fn, init, poses, faces))
+    edges = jnp.asarray(skin.welded_silhouette_edges(skin_fn, init, poses, faces))
     render = jax.jit(
         lambda s: skin.render_style_images(skin_fn, s, poses, faces, cams, edges=edges)
     )

@@ -32,7 +32,8 @@ by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/ski
   :func:`fit_style`.
 * Styles fitted to depth and silhouette images of posed characters from several cameras
   (skinning -> rasterize -> analytic antialias, batched with vmap) -- ``fit_images``:
-  :func:`fit_style_images`, :func:`render_style_images`, :func:`style_image_loss`.
+  :func:`fit_style_images`, :func:`render_style_images`, :func:`style_image_loss`,
+  :func:`welded_silhouette_edges`.
 * Skinned glTF characters (JOINTS_0 / WEIGHTS_0, animations) -- ``gltf``:
   :func:`load_gltf_skin`, :func:`sample_animation`, :func:`joint_matrices`; the file's unskinned
   meshes (props) at their node transforms: :func:`load_gltf_meshes`.
@@ -82,6 +83,9 @@ from jaxgfx._src.skin.fit_images import image_loss as image_loss
 from jaxgfx._src.skin.fit_images import render_silhouette_depth as render_silhouette_depth
 from jaxgfx._src.skin.fit_images import render_style_images as render_style_images
 from jaxgfx._src.skin.fit_images import style_image_loss as style_image_loss
+from jaxgfx._src.skin.fit_images import (
+    welded_silhouette_edges as welded_silhouette_edges,
+)
 from jaxgfx._src.skin.gltf import GltfMesh as GltfMesh
 from jaxgfx._src.skin.gltf import GltfSkin as GltfSkin
 from jaxgfx._src.skin.gltf import joint_globals as joint_globals
@@ -191,6 +195,7 @@ __all__ = [
     "image_loss",
     "style_image_loss",
     "fit_style_images",
+    "welded_silhouette_edges",
     "GltfSkin",
     "load_gltf_skin",
     "GltfMesh",

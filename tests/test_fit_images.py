@@ -217,6 +217,6 @@ def test_split_vertices_are_welded_for_the_silhouette(problem):
     def split_fn(style, pose):
         return skin_fn(style, pose)[faces.reshape(-1)]
 
-    welded = fit_images._welded_edges(split_fn, INIT, poses, split_faces)
+    welded = fit_images.welded_silhouette_edges(split_fn, INIT, poses, split_faces)
     np.testing.assert_array_equal(welded, silhouette_edges(faces))
     assert (silhouette_edges(split_faces) == -1).all()

@@ -62,6 +62,7 @@ __all__ = [
     "image_loss",
     "style_image_loss",
     "fit_style_images",
+    "welded_silhouette_edges",
 ]
 
 SkinFn = Callable[[Style, Any], jax.Array]
@@ -109,7 +110,7 @@ def _render_batch(skin_fn, style, poses, faces, edges, cameras):
     return jax.vmap(one_pose)(poses)
 
 
-def _welded_edges(skin_fn: SkinFn, style: Style, poses, faces) -> np.ndarray:
+def welded_silhouette_edges(skin_fn: SkinFn, style: Style, poses, faces) -> np.ndarray:
     """Edge topology of a skinned mesh with its split vertices welded (host, once per mesh).
 
     :func:`jaxgfx.silhouette.silhouette_edges` of ``faces`` with the vertices ``skin_fn`` puts
@@ -158,7 +159,7 @@ def render_style_images(
     """
     if edges is None:
         edges = (
-            _welded_edges(skin_fn, style, poses, faces)
+            welded_silhouette_edges(skin_fn, style, poses, faces)
             if _concrete(style, poses)
             else silhouette_edges(faces)
         )
@@ -387,7 +388,7 @@ def fit_style_images(
         schedule = optax.cosine_decay_schedule(learning_rate, max(steps, 1), alpha=0.01)
         optimizer = optax.adam(schedule)
     if edges is None:
-        edges = _welded_edges(skin_fn, init_style, poses, np.asarray(faces))
+        edges = welded_silhouette_edges(skin_fn, init_style, poses, np.asarray(faces))
     faces = jnp.asarray(faces, jnp.int32)
     edges = jnp.asarray(edges, jnp.int32)
     if edges.shape != faces.shape:
