@@ -140,7 +140,7 @@ def timed_fit(*args, **kwargs):
     """``skin.fit_style`` and its steady-state steps/s (the first, compiling step excluded)."""
     stamps = []
     res = skin.fit_style(
-        *args, callback=lambda i, loss: stamps.append(time.perf_counter()), **kwargs
+        *args, callback=lambda i, loss, params: stamps.append(time.perf_counter()), **kwargs
     )
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 1 else float("nan")
     return res, rate

@@ -150,27 +150,22 @@ def make_optimizer(name, lr, steps):
     return optax.adam(schedule) if name == "adam" else optax.sgd(schedule)
 
 
-def fit_curve(loss_fn, init, optimizer, steps, every, score):
-    """The optimization loop of :func:`jaxgfx.skin.fit_style_images`, scoring the style every
-    ``every`` steps; returns the style, the losses and the curve [(step, *score)]."""
-    params = skin.style_to_params(init)
-    hollow = init.hollow
+def fit_curve(problem, targets, init, optimizer, args, weights, edges, score):
+    """:func:`jaxgfx.skin.fit_style_images` with ``optimizer``, scoring the style every
+    ``args.every`` steps; returns the fit and the curve [(step, *score)]."""
+    skin_fn, poses, faces, cams, *_ = problem
+    curve = [(0, *score(init))]
 
-    @jax.jit
-    def step(p, s):
-        (loss, _), grads = jax.value_and_grad(loss_fn, has_aux=True)(p)
-        updates, s = optimizer.update(grads, s, p)
-        return optax.apply_updates(p, updates), s, loss
+    def every(i, loss, params):
+        if (i + 1) % args.every == 0 or i + 1 == args.steps:
+            curve.append((i + 1, *score(skin.params_to_style(params, init.hollow))))
 
-    state = optimizer.init(params)
-    losses, curve = [], [(0, *score(init))]
-    for i in range(steps):
-        params, state, loss = step(params, state)
-        losses.append(float(loss))
-        if (i + 1) % every == 0 or i + 1 == steps:
-            curve.append((i + 1, *score(skin.params_to_style(params, hollow))))
-    losses.append(float(step(params, state)[2]))  # the final loss (the step's update unused)
-    return skin.params_to_style(params, hollow), np.asarray(losses), curve
+    fit = skin.fit_style_images(
+        skin_fn, poses, faces, cams, targets, init, steps=args.steps,
+        silhouette_weight=weights[0], depth_weight=weights[1], depth_clip=args.depth_clip,
+        optimizer=optimizer, progress=False, callback=every, edges=edges,
+    )  # fmt: skip
+    return fit, curve
 
 
 def run_case(name, problem, truth, init, args, weights):
@@ -182,22 +177,15 @@ def run_case(name, problem, truth, init, args, weights):
     targets = render(truth)
     errors = vertex_errors(skin_fn, poses, held_out, radius, subset)
     before = errors(init, truth)
-    faces_j = jnp.asarray(faces, jnp.int32)
-
-    def loss_fn(p):
-        return skin.style_image_loss(
-            p, skin_fn, poses, faces_j, edges, cams, targets, init.hollow,
-            silhouette_weight=weights[0], depth_weight=weights[1], depth_clip=args.depth_clip,
-        )  # fmt: skip
-
     rows, results = [], []
     for opt in args.optimizers:
         lr = args.lr if opt == "adam" else args.sgd_lr
         t0 = time.perf_counter()
-        style, losses, curve = fit_curve(
-            loss_fn, init, make_optimizer(opt, lr, args.steps), args.steps, args.every,
+        fit, curve = fit_curve(
+            problem, targets, init, make_optimizer(opt, lr, args.steps), args, weights, edges,
             lambda s: errors(s, truth),
         )  # fmt: skip
+        style, losses = fit.style, fit.loss_history
         seconds = time.perf_counter() - t0
         after = curve[-1][1:]
         rows.append(

@@ -199,7 +199,7 @@ def fit_style(
     dominant_only: bool = False,
     samples: int | None = None,
     progress: bool = True,
-    callback: Callable[[int, float], None] | None = None,
+    callback: Callable[[int, float, dict], None] | None = None,
 ) -> FitResult:
     """Fit a style's textures and curves to target poses by gradient descent.
 
@@ -225,7 +225,8 @@ def fit_style(
             Faster per step, at the sampled path's accuracy (``experiments/fit_style.py``
             reports both).
         progress: show a tqdm bar.
-        callback: called as ``callback(step, loss)`` after each step.
+        callback: called as ``callback(step, loss, params)`` after each step, ``params``
+            the log-parameters after it (:func:`params_to_style` makes the style).
 
     Returns:
         :class:`FitResult` with the fitted style and the loss history.
@@ -272,7 +273,7 @@ def _run_optimizer(
     *,
     desc: str,
     progress: bool,
-    callback: Callable[[int, float], None] | None,
+    callback: Callable[[int, float, dict], None] | None,
 ) -> FitResult:
     """The optimization loop of the fitting drivers: one jitted step run ``steps`` times.
 
@@ -283,7 +284,8 @@ def _run_optimizer(
         steps: steps to run.
         desc: tqdm label.
         progress: show a tqdm bar.
-        callback: called as ``callback(step, loss)`` after each step.
+        callback: called as ``callback(step, loss, params)`` after each step, ``params``
+            the log-parameters after it (:func:`params_to_style` makes the style).
 
     Returns:
         :class:`FitResult`: the losses before each step and after the last, and the wall seconds
@@ -308,7 +310,7 @@ def _run_optimizer(
         if progress and (i % 10 == 0 or i == steps - 1):
             bar.set_postfix(loss=f"{losses[-1]:.3e}")
         if callback is not None:
-            callback(i, losses[-1])
+            callback(i, losses[-1], params)
     # the loss after the last step without a second compile: one more step's value (its update
     # is dropped); with no steps, the loss alone
     final, final_data = jax.jit(loss_fn)(params) if steps == 0 else step(params, opt_state)[2:]

@@ -331,7 +331,7 @@ def fit_style_images(
     smoothness: float = 0.0,
     optimizer: optax.GradientTransformation | None = None,
     progress: bool = True,
-    callback: Callable[[int, float], None] | None = None,
+    callback: Callable[[int, float, dict], None] | None = None,
     edges=None,
 ) -> FitResult:
     """Fit a style's textures and curves to depth and silhouette images (never to vertices).
@@ -364,7 +364,8 @@ def fit_style_images(
         smoothness: weight of the smoothness penalty on the log-parameters.
         optimizer: any optax transformation (default Adam with cosine decay).
         progress: show a tqdm bar.
-        callback: called as ``callback(step, loss)`` after each step.
+        callback: called as ``callback(step, loss, params)`` after each step, ``params``
+            the log-parameters after it (:func:`params_to_style` makes the style).
         edges: (F, 3) edge topology of the mesh; default
             ``silhouette_edges(faces, skin_fn(init_style, poses[0]))`` (split vertices welded).
 
