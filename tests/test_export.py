@@ -72,6 +72,14 @@ def test_rasterize_gradients_and_antialias_lower(mesh, cams):
     _export(jax.grad(loss), v)
     _export(lambda c: jax.grad(lambda p: loss(v * p[0]))(jnp.ones(1)), cam)
 
+    # A batch of antialiased images is one vectorized program: its outline walks are the
+    # single image's loops (batched), with no loop over the frames.
+    def image(c):
+        return silhouette.analytic_antialias(c, v, f, rasterize(c, v, f, v), edges=edges)
+
+    one, batch = _export(image, cam), _export(jax.vmap(image), cams)
+    assert _whiles(batch) == _whiles(one) > 0
+
 
 def test_render_rle_and_its_batch_lower():
     tree = raycast.procedural_tree(16, key=jax.random.key(0))
