@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 from pathlib import Path
@@ -9,6 +10,21 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+
+# Compiling is most of this suite's time, and LLVM's optimizer about a fifth of compiling, so
+# tests (and the CLI and experiment runs they start) compile at XLA:CPU's lowest backend
+# optimization level: what they check (values, shapes, errors, gradients) does not depend on
+# it.  A claim that two programs give bit-identical results is a claim about the user's code
+# generation: such tests compile both programs at XLA's default level (``USER_CODEGEN``; the
+# sweep tests' subprocesses set their own flags).  JAXGFX_TEST_CODEGEN=default runs every
+# test at the default level.
+# XLA reads its flags when the backend starts (the first array), after these imports.
+if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
+    ).strip()
+USER_CODEGEN = {"xla_backend_optimization_level": 3}
+"""``jax.jit(..., compiler_options=USER_CODEGEN)``: XLA:CPU's default code generation."""
 
 DATA = Path(
     os.environ.get("JAXGFX_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
@@ -65,6 +81,12 @@ def raster_jit():
     from jaxgfx.raster import rasterize
 
     return jax.jit(rasterize, static_argnames=("cull_backfaces", "block", "chunk"))
+
+
+@pytest.fixture(scope="package")
+def user_jit():
+    """``jax.jit`` at XLA's default code generation, for claims about the user's programs."""
+    return functools.partial(jax.jit, compiler_options=USER_CODEGEN)
 
 
 class CompileCounter:

@@ -206,19 +206,20 @@ def _same_frames(batched, single, k):
         np.testing.assert_allclose(b[fin], s[fin], rtol=1e-5, atol=1e-5 * scale)
 
 
-def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(raster_jit, compile_counter):
+def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(user_jit, compile_counter):
     mesh = trimesh.creation.icosphere(subdivisions=2)
     v = np.asarray(mesh.vertices, np.float32)
     f = np.asarray(mesh.faces, np.int32)
     cams = orbit_cameras([0, 0, 0], 3.0, 8, width=24, height=18)
     # A near plane cutting the sphere for one camera (clipped triangles in the batch too).
     cams = dataclasses.replace(cams, near=cams.near.at[3].set(2.8))
-    by_cam = jax.jit(jax.vmap(lambda c, vv: rasterize(c, vv, f, vv), (0, None)))
+    by_cam = user_jit(jax.vmap(lambda c, vv: rasterize(c, vv, f, vv), (0, None)))
+    single = user_jit(rasterize)
     out = by_cam(cams, v)
     assert np.mean(np.asarray(out.tri_id) >= 0) > 0.2
     for k in range(8):
         one = jax.tree_util.tree_map(lambda x, k=k: x[k], cams)
-        _same_frames(out, raster_jit(one, v, f, v), k)
+        _same_frames(out, single(one, v, f, v), k)
     # Four posed meshes with shared faces, one camera.
     cam0 = jax.tree_util.tree_map(lambda x: x[0], cams)
     twist = np.array([0.0, 0.3, 0.6, 0.9], np.float32)
@@ -229,15 +230,15 @@ def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(raster_jit
             for ci, si in zip(c, s_)
         ]
     )
-    by_pose = jax.jit(jax.vmap(lambda vv: rasterize(cam0, vv, f, vv)))
+    by_pose = user_jit(jax.vmap(lambda vv: rasterize(cam0, vv, f, vv)))
     outp = by_pose(posed)
     for k in range(4):
-        _same_frames(outp, raster_jit(cam0, posed[k], f, posed[k]), k)
+        _same_frames(outp, single(cam0, posed[k], f, posed[k]), k)
     # The accelerators' rule forced on this CPU (one vectorized program for the batch, its
     # loops advancing every frame) gives the frame-by-frame frames.
     vec = dict(batching="vectorized")
-    out_vec = jax.jit(jax.vmap(lambda c: rasterize(c, v, f, v, **vec)))(cams)
-    outp_vec = jax.jit(jax.vmap(lambda vv: rasterize(cam0, vv, f, vv, **vec)))(posed)
+    out_vec = user_jit(jax.vmap(lambda c: rasterize(c, v, f, v, **vec)))(cams)
+    outp_vec = user_jit(jax.vmap(lambda vv: rasterize(cam0, vv, f, vv, **vec)))(posed)
     for k in range(8):
         _same_frames(out_vec, jax.tree_util.tree_map(lambda x, k=k: x[k], out), k)
     for k in range(4):
