@@ -1145,7 +1145,8 @@ def test_blend_keeps_the_seam_and_settles():
 
 def test_blend_compact_rows_equal_every_row(monkeypatch):
     # weld_seam / blend_seam work on compacted ring and band rows when they fit their
-    # lists, on every row otherwise: both paths give bit-identical meshes.
+    # lists, on every row otherwise: both paths give bit-identical meshes on XLA:CPU.  (On
+    # an H100, XLA:GPU fused the normals' normalisation differently per path: 1 ulp.)
     from jaxgfx._src.terrain import meshing, postprocess
 
     inner, outer = _seam_pair()
@@ -1155,9 +1156,10 @@ def test_blend_compact_rows_equal_every_row(monkeypatch):
         monkeypatch.setattr(postprocess, "_BAND_SHARE", share)
         # a fresh function each time: jax.jit caches traces per function object
         outs.append(jax.jit(lambda i, o: postprocess.blend_seam(i, o))(inner, outer))
+    ulps = 0 if jax.default_backend() == "cpu" else 1
     for field in ("vertices", "normals"):
         a, b = (np.asarray(getattr(o, field)) for o in outs)
-        np.testing.assert_array_equal(a, b, err_msg=field)
+        np.testing.assert_array_max_ulp(a, b, maxulp=ulps)
     assert np.abs(np.asarray(outs[0].vertices) - np.asarray(inner.vertices)).max() > 0.05
 
 
