@@ -52,6 +52,7 @@ from jaxgfx._src.camera import (
     screen_to_camera,
     validate_camera,
     world_to_camera,
+    world_to_camera_soa,
 )
 from jaxgfx._src.checks import check_int
 from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
@@ -428,10 +429,12 @@ def _raster_kernel(cull_backfaces: bool, block: int, chunk: int, batching: str):
     """Visibility and shading of one frame, with the ``batching`` rule under ``vmap``."""
 
     def frame(cam, vertices, faces, attributes):
+        p_cam = world_to_camera_soa(cam, vertices)
         inv_depth, face_id = _frame_visibility(
-            cam, vertices, faces, cull_backfaces, block, chunk, TRI_BATCH
+            cam, vertices, faces, cull_backfaces, block, chunk, TRI_BATCH, p_cam
         )
-        return _shade(cam, vertices, faces, attributes, inv_depth, face_id)
+        pv = p_cam.T
+        return _shade_rows(cam, pv, faces, attributes, inv_depth, face_id, 0, cam.height)
 
     return per_frame(frame, batching)
 

@@ -412,7 +412,7 @@ def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam=None, half=N
     return triangle_setup(cam, tris, keep, block)
 
 
-def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch):
+def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch, p_cam=None):
     """Visibility of one frame, its faces set up ``tri_batch`` at a time.
 
     A frame's setup holds ~200 bytes per face; for a large mesh (the 718 k-face terrain:
@@ -429,7 +429,8 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     n = faces.shape[0]
     batches = max(1, -(-n // tri_batch))
     size = -(-n // batches)
-    p_cam = world_to_camera_soa(cam, vertices)  # once, not per batch
+    if p_cam is None:
+        p_cam = world_to_camera_soa(cam, vertices)  # once, not per batch
     # The last batch's window is moved back to end at the last face (no padded copy
     # of the faces); its faces before b * size were drawn by the batch before.
     done = jnp.arange(size, dtype=jnp.int32)  # face of each setup slot
