@@ -10,7 +10,10 @@ work:
    several host devices, ``rasterize(devices=D)`` (the frame's faces split over all D;
    ``split_equal``: bit-identical to one device) against open3d's ``RaycastingScene``
    (Embree, every core), Mesa llvmpipe (OpenGL through a moderngl EGL context, depth read
-   back inside the timing) and trimesh's ray caster on embreex (one thread).
+   back inside the timing) and trimesh's ray caster on embreex (one thread); and the cost of
+   a gradient through the same frame (no peer): ``jax.grad`` of the summed colour (the
+   vertex positions as attributes) w.r.t. the vertices, and of the summed finite depth
+   w.r.t. the camera (``grad_vertices_ms``, ``grad_camera_ms``).
 2. Batches: the bunny at 512x384 from 1, 8, 32 and 128 orbit cameras, depth only and
    colour + depth, frames per second of a Python loop over the single-camera jit,
    ``jax.jit(jax.vmap(rasterize))`` with the batch on one device (``vmap``) and with the batch
@@ -43,6 +46,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import trimesh
 
@@ -132,7 +136,16 @@ def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:
     from jaxgfx.camera import look_at
     from jaxgfx.compose import depth_image
     from jaxgfx.io import save_png
+    from jaxgfx.raster import rasterize
 
+    def colour_sum(vertices, cam, faces):
+        return jnp.sum(rasterize(cam, vertices, faces, vertices).color)
+
+    def depth_sum(cam, vertices, faces):
+        depth = rasterize(cam, vertices, faces).depth
+        return jnp.sum(jnp.where(jnp.isfinite(depth), depth, 0.0))
+
+    grad_vertices, grad_camera = jax.jit(jax.grad(colour_sum)), jax.jit(jax.grad(depth_sum))
     sizes = [(128, 96)] if args.quick else [(512, 384), (1024, 768)]
     rows = []
     for name, tag, mesh, view in scenes(args.quick):
@@ -153,6 +166,14 @@ def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:
                 methods["jaxgfx_split"] = lambda cam=cam, v=v, f=f: jax.block_until_ready(
                     split(cam, v, f, v)
                 )
+            methods["grad_vertices"] = lambda cam=cam, v=v, f=f: jax.block_until_ready(
+                grad_vertices(v, cam, f)
+            )
+            methods["grad_camera"] = lambda cam=cam, v=v, f=f: jax.block_until_ready(
+                grad_camera(cam, v, f)
+            )
+            methods["grad_vertices"]()  # compile
+            methods["grad_camera"]()
             for p in peers:
                 methods[p.name] = lambda p=p, s=states[p.name]: p.run(s)
                 p.run(states[p.name])  # warm-up (first GL draw compiles shaders, ...)
@@ -165,6 +186,8 @@ def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:
                 compile_s=compile_s - best["jaxgfx"],
                 jaxgfx_ms=best["jaxgfx"] * 1e3,
                 coverage=f"{np.isfinite(depth).mean() * 100:.1f}%",
+                grad_vertices_ms=best["grad_vertices"] * 1e3,
+                grad_camera_ms=best["grad_camera"] * 1e3,
             )
             for p in peers:
                 row[f"{p.name}_ms"] = best[p.name] * 1e3
