@@ -418,7 +418,8 @@ def _rasterize_jvp(static, primals, tangents):
     inv_depth = jnp.where(hit, 1.0 / out.depth.reshape(-1), 0.0)  # only the grazing fallback
 
     def shade(cam, vertices, attributes):
-        return RasterOutput(*_shade(cam, vertices, faces, attributes, inv_depth, face_id))
+        pv = world_to_camera(cam, vertices)
+        return RasterOutput(*_shade(cam, pv, faces, attributes, inv_depth, face_id))
 
     _, t_out = jax.jvp(shade, (cam, vertices, attributes), (t_cam, t_vertices, t_attributes))
     return out, t_out
@@ -429,19 +430,24 @@ def _raster_kernel(cull_backfaces: bool, block: int, chunk: int, batching: str):
     """Visibility and shading of one frame, with the ``batching`` rule under ``vmap``."""
 
     def frame(cam, vertices, faces, attributes):
+        # One set of camera-space vertices for the z-buffer and the shading: its loops take
+        # them as an operand, so they are written out once, and the shading's per-pixel
+        # gather reads them (computed inside it, XLA recomputed the camera rotation for
+        # every gathered value).
         p_cam = world_to_camera_soa(cam, vertices)
         inv_depth, face_id = _frame_visibility(
-            cam, vertices, faces, cull_backfaces, block, chunk, TRI_BATCH, p_cam
+            cam, vertices, p_cam, faces, cull_backfaces, block, chunk, TRI_BATCH
         )
-        pv = p_cam.T
-        return _shade_rows(cam, pv, faces, attributes, inv_depth, face_id, 0, cam.height)
+        return _shade(cam, p_cam.T, faces, attributes, inv_depth, face_id)
 
     return per_frame(frame, batching)
 
 
-def _shade(cam, vertices, faces, attributes, inv_depth, face_id):
-    """Colour, depth, ids and barycentrics of one frame from its visibility (flat H*W)."""
-    pv = world_to_camera(cam, vertices)  # (V, 3)
+def _shade(cam, pv, faces, attributes, inv_depth, face_id):
+    """Colour, depth, ids and barycentrics of one frame from its visibility (flat H*W).
+
+    ``pv``: (V, 3) camera-space vertices.
+    """
     return _shade_rows(cam, pv, faces, attributes, inv_depth, face_id, 0, cam.height)
 
 

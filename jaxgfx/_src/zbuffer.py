@@ -412,8 +412,11 @@ def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam=None, half=N
     return triangle_setup(cam, tris, keep, block)
 
 
-def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch, p_cam=None):
+def _frame_visibility(cam, vertices, p_cam, faces, cull_backfaces, block, chunk, tri_batch):
     """Visibility of one frame, its faces set up ``tri_batch`` at a time.
+
+    ``p_cam``: (3, V) camera-space vertices (``world_to_camera_soa``), computed once by the
+    caller, which may shade from the same array.
 
     A frame's setup holds ~200 bytes per face; for a large mesh (the 718 k-face terrain:
     ~300 MB of temporaries) XLA:CPU's per-call buffers then come fresh from the OS and
@@ -429,8 +432,6 @@ def _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_ba
     n = faces.shape[0]
     batches = max(1, -(-n // tri_batch))
     size = -(-n // batches)
-    if p_cam is None:
-        p_cam = world_to_camera_soa(cam, vertices)  # once, not per batch
     # The last batch's window is moved back to end at the last face (no padded copy
     # of the faces); its faces before b * size were drawn by the batch before.
     done = jnp.arange(size, dtype=jnp.int32)  # face of each setup slot
@@ -476,7 +477,10 @@ def _visible_faces_fn(cull_backfaces: bool, block: int, chunk: int, tri_batch: i
     """The batching kernel for one static configuration (built once, cached)."""
 
     def frame(cam, vertices, faces):  # (1/z, face id), each flat (H*W,)
-        return _frame_visibility(cam, vertices, faces, cull_backfaces, block, chunk, tri_batch)
+        p_cam = world_to_camera_soa(cam, vertices)
+        return _frame_visibility(
+            cam, vertices, p_cam, faces, cull_backfaces, block, chunk, tri_batch
+        )
 
     return per_frame(frame, batching)
 

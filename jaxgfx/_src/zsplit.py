@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec
 
+from jaxgfx._src.camera import world_to_camera_soa
 from jaxgfx._src.frames import batch_mesh, shard
 from jaxgfx._src.zbuffer import NO_TRI, _frame_visibility, visible_faces
 
@@ -72,8 +73,9 @@ def _split_fn(
 
     def local(cam, vertices, faces):
         k = jax.lax.axis_index(_AXIS)
+        p_cam = world_to_camera_soa(cam, vertices)
         inv_depth, fid = _frame_visibility(
-            cam, vertices, faces, cull_backfaces, block, chunk, tri_batch
+            cam, vertices, p_cam, faces, cull_backfaces, block, chunk, tri_batch
         )
         zbits = jax.lax.bitcast_convert_type(inv_depth, jnp.int32)
         # Local face i of device k is face i * d + k of the mesh (interleaved deal).
