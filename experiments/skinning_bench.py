@@ -60,6 +60,9 @@ LIMB = "limb: 3 influences, 6 bones"
 CROWD = f"crowd: 4 influences, {CROWD_BONES} bones"
 ONE = f"one mesh: 4 influences, {CROWD_BONES} bones"
 PEER = "LBS, numba prange (peer)"
+ROW_GATHER = "LBS design: (V, I, 12) row gather + contraction"
+ONE_HOT_BLOCK = 16384  # vertices per step of the one-hot design (its (block, J) weights in cache)
+ONE_HOT = f"LBS design: one-hot weights @ bone rows, blocks of {ONE_HOT_BLOCK}"
 _LBS_ROW = {LIMB: "LBS (SSD)", CROWD: "LBS", ONE: "LBS"}
 QUICK_METHODS = ("LBS (SSD)", "spline, sampled (S=32)", "spline + radial + rect")
 CHUNK = 8  # poses per step of each device's loop (sharded_vmap's chunk)
@@ -176,6 +179,54 @@ def numba_lbs():
             out_n[c, v, 2] = nz * s
 
     return lbs, f"numba {numba.__version__}, {numba.get_num_threads()} threads"
+
+
+# other designs of one-mesh LBS, measured against the kernel (``skin.linear_blend_skinning``,
+# scalar gathers of coefficient columns in structure-of-arrays layout)
+# ----------------------------------------------------------------------------------------------
+
+
+def _bone_rows(transforms) -> jax.Array:
+    """(J, 3, 4) -> (J, 12) rows, columns of ``[R | t]`` (as numba's table)."""
+    return jnp.swapaxes(transforms[:, :3, :], -1, -2).reshape(transforms.shape[0], 12)
+
+
+def _apply_rows(m, vertices, normals):
+    """Positions and unit normals from blended (V, 12) rows (array-of-structures layout)."""
+    r = m[:, :9].reshape(-1, 3, 3)
+    pos = jnp.einsum("vk,vkc->vc", vertices, r) + m[:, 9:]
+    nrm = jnp.einsum("vk,vkc->vc", normals, r)
+    return pos, nrm * jax.lax.rsqrt(jnp.maximum(jnp.sum(nrm * nrm, -1, keepdims=True), 1e-12))
+
+
+def lbs_row_gather(transforms, vertices, normals, joints, weights):
+    """LBS as the per-vertex formula vectorizes: gather (V, I, 12) bone rows, contract."""
+    rows = _bone_rows(transforms)[joints]  # (V, I, 12)
+    return _apply_rows(jnp.einsum("vi,vic->vc", weights, rows), vertices, normals)
+
+
+def lbs_one_hot(transforms, vertices, normals, joints, weights):
+    """LBS as dense matrix products: per block of vertices, (block, J) weights @ (J, 12) rows.
+
+    No per-vertex gather of the bone table: each vertex's dense weight row is built by
+    comparing its bone indices with every bone, and the blend is a matrix product.
+    """
+    rows = _bone_rows(transforms)
+    bones = jnp.arange(rows.shape[0], dtype=joints.dtype)
+    nv = vertices.shape[0]
+    steps = -(-nv // ONE_HOT_BLOCK)
+
+    def blocks(x):  # (V, ...) -> (steps, ONE_HOT_BLOCK, ...), zero rows (weight 0) at the end
+        x = jnp.pad(x, [(0, steps * ONE_HOT_BLOCK - nv)] + [(0, 0)] * (x.ndim - 1))
+        return x.reshape(steps, ONE_HOT_BLOCK, *x.shape[1:])
+
+    def block(a):
+        v, n, j, w = a
+        dense = jnp.sum(w[:, :, None] * (j[:, :, None] == bones), axis=1)  # (block, J)
+        return _apply_rows(dense @ rows, v, n)
+
+    pos, nrm = jax.lax.map(block, tuple(blocks(x) for x in (vertices, normals, joints, weights)))
+    return pos.reshape(-1, 3)[:nv], nrm.reshape(-1, 3)[:nv]
 
 
 def copy_rate(nbytes: int, repeats: int) -> float:
@@ -347,6 +398,14 @@ def main(argv=None) -> int:
     dqs_b = jax.jit(jax.vmap(skin.dual_quaternion_skinning, in_axes=(0, None, None, None, None)))
     add("LBS", ONE, lambda: lbs_1(t_one, *one_mesh))
     add("DQS", ONE, lambda: dqs_1(t_one, *one_mesh))
+    if not args.quick:  # the designs the kernel was measured against (design notes)
+        for name, design in (
+            (ROW_GATHER, lbs_row_gather),
+            (ONE_HOT, lbs_one_hot),
+        ):
+            add(name, ONE, functools.partial(jax.jit(design), t_one, *one_mesh))
+            for got, want in zip(compiled[ONE, name](), lbs_1(t_one, *one_mesh), strict=True):
+                np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-4)
     if not args.quick:  # the smoke test compiles the target rows only
         add("DQS", CROWD, lambda: dqs_b(transforms, *crowd_mesh))
     if ndev > 1:

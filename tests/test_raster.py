@@ -324,9 +324,11 @@ def test_shading_in_stripes_equals_whole_frame(monkeypatch):
     parts = raster.rasterize(cam, v, f, v)
     assert np.count_nonzero(np.asarray(whole.tri_id) >= 0) > 200
     np.testing.assert_array_equal(parts.tri_id, whole.tri_id)
-    # float rounding only (XLA contracts FMAs per fusion): the vmap tests' 1e-5
+    # float rounding only (XLA contracts FMAs per fusion): the vmap tests' 1e-5; the
+    # barycentrics of a pixel whose ray nearly grazes its face (small determinant) move a
+    # few times more
     np.testing.assert_allclose(parts.depth, whole.depth, rtol=1e-5)
-    np.testing.assert_allclose(parts.bary, whole.bary, atol=1e-5)
+    np.testing.assert_allclose(parts.bary, whole.bary, atol=3e-5)
     np.testing.assert_allclose(parts.color, whole.color, rtol=1e-5, atol=1e-5)
 
 
