@@ -212,11 +212,14 @@ def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(user_jit, 
     f = np.asarray(mesh.faces, np.int32)
     cams = orbit_cameras([0, 0, 0], 3.0, 8, width=24, height=18)
     # A near plane cutting the sphere for one camera (clipped triangles in the batch too).
-    cams = dataclasses.replace(cams, near=cams.near.at[3].set(2.8))
+    # And one beyond it: an empty frame (on the CPU its shading is skipped) in the batch.
+    cams = dataclasses.replace(cams, near=cams.near.at[3].set(2.8).at[5].set(4.5))
     by_cam = user_jit(jax.vmap(lambda c, vv: rasterize(c, vv, f, vv), (0, None)))
     single = user_jit(rasterize)
     out = by_cam(cams, v)
     assert np.mean(np.asarray(out.tri_id) >= 0) > 0.2
+    assert np.all(np.asarray(out.tri_id[5]) == -1) and np.all(np.isinf(out.depth[5]))
+    assert np.all(np.asarray(out.color[5]) == 0) and np.all(np.asarray(out.bary[5]) == 0)
     for k in range(8):
         one = jax.tree_util.tree_map(lambda x, k=k: x[k], cams)
         _same_frames(out, single(one, v, f, v), k)
