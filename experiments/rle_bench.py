@@ -378,10 +378,12 @@ def run(args):
             variants.append((f"bunnies (R={max(bunny.shape)})", padded))
     shown = variants[-1 if quick else 1][0] if variants else None  # the ground tiles
     for label, obj in variants:
-        # The full mip chain, as in the thesis (4.4.7), as far as instances allow
-        # (a tile's x / z size must stay divisible by 2 ** (levels - 1)).
+        # The full mip chain (4.4.7), as far as instances allow (a tile's x / z size must
+        # stay divisible by 2 ** (levels - 1)), by default as column mips: the thesis's
+        # cube mips raise the one-voxel ground by 2^l - 1 voxels where each LOD band
+        # starts, and the frame shows a seam line there (--mips cube).
         side = int(np.gcd(obj.shape[0], obj.shape[2]))
-        rle_l = RC.encode_rle(obj, levels=(side & -side).bit_length())
+        rle_l = RC.encode_rle(obj, levels=(side & -side).bit_length(), mips=args.mips)
         tx, ty, tz = obj.shape
         counts = [1, 4] if quick else [1, 100, 1600]
         w, h = (128, 96) if quick else (512, 384)
@@ -554,6 +556,12 @@ def main(argv=None) -> int:
         help="horizontal supersampling (1: one ray per pixel, as Embree's)",
     )
     ap.add_argument("--no-instances", action="store_true", help="skip the instance table")
+    ap.add_argument(
+        "--mips",
+        choices=RC.MIPS,
+        default="column",
+        help="mip kind of the instance table's objects (encode_rle's mips=)",
+    )
     ap.add_argument("--sizes", default=None, help="frame sizes, e.g. 512x384 (default: all)")
     args = ap.parse_args(argv)
     # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).

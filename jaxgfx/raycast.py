@@ -22,8 +22,9 @@ A reader's table of contents: thesis section -> function (implementation in
     (Tables 4.1, 4.2), :func:`place_instances` (shared columns on a tile grid),
     :func:`share_columns` (copies at any position share their column tails), :func:`as_jax`, and
     :func:`empty_space_distance` (not in the thesis) (``encode``).
-4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)``;
-    :func:`lod_distance_for` (the band length for a cell size on screen).
+4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)`` (and
+    ``mips="column"``, not in the thesis: levels that keep the heights, so LOD bands join
+    without steps); :func:`lod_distance_for` (the band length for a cell size on screen).
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
     :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
     :func:`check_camera_outside`.
@@ -63,6 +64,7 @@ from jaxgfx._src.voxel.codec import MAX_SKIP as MAX_SKIP
 from jaxgfx._src.voxel.codec import SKIP_BITS as SKIP_BITS
 from jaxgfx._src.voxel.codec import pack_element as pack_element
 from jaxgfx._src.voxel.codec import unpack_element as unpack_element
+from jaxgfx._src.voxel.encode import MIPS as MIPS
 from jaxgfx._src.voxel.encode import RLEVolume as RLEVolume
 from jaxgfx._src.voxel.encode import as_jax as as_jax
 from jaxgfx._src.voxel.encode import decode_rle as decode_rle
@@ -141,6 +143,7 @@ __all__ = [
     "pack_element",
     "unpack_element",
     "RLEVolume",
+    "MIPS",
     "encode_rle",
     "decode_rle",
     "rle_stats",

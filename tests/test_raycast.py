@@ -243,6 +243,39 @@ def test_lod_level_matches_downsampled_reference(scene):
     assert agree.sum() / union.sum() >= 0.9
 
 
+def test_column_mips_join_lod_bands_without_steps():
+    # A one-voxel ground slab (an instance map of 4 x 4 tiles) is the same surface at every
+    # level of column mips, so with LOD bands from 6 voxels out the frame equals the level-0
+    # frame, on both traversals.  Cube mips raise it by up to 2^l - 1 voxels where each
+    # band starts: the seam lines of a forest's ground.
+    occ = np.zeros((32, 4, 32), bool)
+    occ[:, 0] = True
+    col = np.zeros(occ.shape + (3,), np.uint8)
+    col[..., 1] = 200
+    vox = V.dense_to_voxels(occ, col, surface=False)
+    cam = look_at([-6.0, 5.0, -6.0], [40.0, 0.0, 40.0], fov=60, width=W, height=H, far=1e4)
+    tiles = [(i, j) for i in range(4) for j in range(4)]
+    for mips, settings in (("column", None), ("column", WIDE), ("cube", None)):
+        rle = V.as_jax(V.place_instances(V.encode_rle(vox, levels=4, mips=mips), tiles, (4, 4)))
+        kw = {} if settings is None else dict(settings=settings)
+        full = render(rle, cam, lod_distance=np.inf, **kw)
+        banded = render(rle, cam, lod_distance=6.0, **kw)
+        d0, d1 = np.asarray(full.depth), np.asarray(banded.depth)
+        assert np.isfinite(d0).mean() > 0.2
+        both = np.isfinite(d0) & np.isfinite(d1)
+        moved = np.abs(np.where(both, d1 - d0, 0.0)) / np.where(both, d0, 1)
+        if mips == "column":
+            # the map's far edge: a few pixels sampled by other planes
+            assert np.mean(np.isfinite(d1) != np.isfinite(d0)) < 2e-3
+            # equal depth but on a few pixels of the slab's outline (next to the sky), up
+            # to about half a voxel, where the ray buffer samples another plane
+            assert np.mean(moved[both] < 1e-3) > 0.99 and moved.max() < 0.03
+            same = np.all(np.asarray(banded.color) == np.asarray(full.color), axis=-1)
+            assert same[both].mean() > 0.995
+        else:
+            assert np.mean(moved > 0.05) > 0.2  # the steps this test exists to catch
+
+
 @pytest.mark.parametrize("pixels", [1.0, 2.5])
 def test_lod_distance_for_sizes_a_band_start_cell_in_pixels(pixels):
     # Where each band starts (lod * 2 ** (l - 1)) a cell of 2 ** l voxels, across

@@ -49,6 +49,29 @@ def test_round_trip_random_with_mips():
     _same(V.decode_rle(rle, 2), V.downsample_voxels(V.downsample_voxels(vox)))
 
 
+def test_column_mips_keep_heights():
+    # mips="column": x and z halved per level, y kept; the voxels decode to a 2x1x2
+    # down-sampling whose occupancy is the OR of the children, checked against NumPy.
+    rng = np.random.default_rng(1)
+    vox = _random_voxels(rng, (9, 40, 7), 900)
+    rle = V.encode_rle(vox, levels=3, mips="column")
+    assert rle.column_mips and rle.level_shapes == ((9, 40, 7), (5, 40, 4), (3, 40, 2))
+    _same(V.decode_rle(rle, 0), vox)
+    occ = np.zeros(vox.shape, bool)
+    occ[tuple(np.asarray(vox.coords).T)] = True
+    for level in (1, 2):
+        f = 2**level
+        want = np.zeros(rle.level_shapes[level], bool)
+        c = np.asarray(vox.coords)
+        want[c[:, 0] // f, c[:, 1], c[:, 2] // f] = True
+        got = V.decode_rle(rle, level)
+        have = np.zeros(rle.level_shapes[level], bool)
+        have[tuple(np.asarray(got.coords).T)] = True
+        np.testing.assert_array_equal(have, want)
+    with pytest.raises(ValueError, match="mips"):
+        V.encode_rle(vox, levels=2, mips="octree")
+
+
 def test_long_runs_and_long_skips_split():
     # One column, 3000 high: a 200-voxel run at the top (> 63 drawn), then a
     # gap of 2500 (> 1023 skipped), then a 5-voxel run.

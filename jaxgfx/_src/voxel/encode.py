@@ -30,6 +30,7 @@ from jaxgfx._src.voxel.voxset import (
 )
 
 __all__ = [
+    "MIPS",
     "RLEVolume",
     "empty_space_distance",
     "encode_rle",
@@ -77,10 +78,14 @@ class RLEVolume:
             instead of decoding every element above them.
         shape: static ``(X, Y, Z)`` of the whole scene at level 0
             (``TX * X_0, Y_0, TZ * Z_0``).
-        level_shapes: static tuple of the object's ``(X_l, Y_l, Z_l)``.
+        level_shapes: static tuple of the object's ``(X_l, Y_l, Z_l)``; ``Y_l = Y_0`` with
+            column mips.
         level_offsets: static tuple, first pointer-map entry of each level.
         max_elements: static, the largest column element count over all levels.
         voxel_counts: static tuple, drawn voxels per level.
+        column_mips: static; False: level ``l``'s cells are cubes of ``2^l`` voxels (the
+            thesis's mips); True: columns ``2^l`` voxels wide and one voxel high, so every
+            level keeps the exact heights (:func:`encode_rle`'s ``mips="column"``).
     """
 
     first: Array
@@ -97,6 +102,7 @@ class RLEVolume:
     level_offsets: tuple = static_field()
     max_elements: int = static_field()
     voxel_counts: tuple = static_field()
+    column_mips: bool = static_field(default=False)
 
     @property
     def levels(self) -> int:
@@ -253,7 +259,11 @@ def _encode_level(vox: Voxels):
     return first, count, ptr, color_ptr, rest, colors
 
 
-def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
+MIPS = ("cube", "column")
+"""Mip kinds of :func:`encode_rle`."""
+
+
+def encode_rle(vox: Voxels, *, levels: int = 1, mips: str = "cube") -> RLEVolume:
     """Encodes surface voxels into the pointer map + RLE columns, with mip levels.
 
     Args:
@@ -261,6 +271,12 @@ def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
             3-D occupancy array is taken as its surface voxels in the clay colour
             (:func:`~jaxgfx._src.voxel.voxset.as_voxels`).
         levels: number of levels; level ``l`` is ``l`` times 2x down-sampled.
+        mips: ``"cube"``: 2x2x2 down-sampling, as the thesis (4.4.7); a coarse cell is
+            ``2^l`` voxels high, so where two LOD bands meet, a surface can step up by up to
+            ``2^l - 1`` voxels (a seam line on flat ground).  ``"column"``: 2x1x2
+            down-sampling, every level keeps the level-0 heights, so bands join without
+            steps; the coarse levels hold more elements (tall surfaces keep their
+            vertical runs).
 
     Returns:
         The :class:`RLEVolume` (NumPy-backed leaves; ``jax.device_put`` it for speed).
@@ -271,6 +287,8 @@ def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
     vox = as_voxels(vox)
     shape = _check_shape(vox.shape)
     levels = check_int("levels", levels, low=1)
+    if mips not in MIPS:
+        raise ValueError(f"mips must be one of {MIPS}, got {mips!r}")
     c = np.asarray(vox.coords)
     if len(c) and (c.min() < 0 or np.any(c.max(axis=0) >= np.array(shape))):
         raise ValueError(f"voxel coordinates outside the grid {shape}")
@@ -278,7 +296,7 @@ def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
     cur = vox
     for _ in range(levels):
         parts.append((cur.shape, len(cur.coords), _encode_level(cur)))
-        cur = downsample_voxels(cur)
+        cur = downsample_voxels(cur, vertical=mips == "cube")
     firsts, counts, ptrs, cptrs, els, cols = [], [], [], [], [], []
     offsets, shapes, nvox = [], [], []
     col_base = el_base = c_base = 0
@@ -313,6 +331,7 @@ def encode_rle(vox: Voxels, *, levels: int = 1) -> RLEVolume:
         level_offsets=tuple(offsets),
         max_elements=int(max(1, count.max(initial=0))),
         voxel_counts=tuple(nvox),
+        column_mips=mips == "column",
     )
 
 

@@ -56,6 +56,15 @@ def _level_tables(rle):
     return L, off, sx, sy, sz
 
 
+def _cell_height(rle, c):
+    """Vertical size, in level-0 voxels, of a cell whose horizontal size is ``c`` (= 2^l).
+
+    ``c`` for the thesis's cube mips, 1 for column mips (:func:`~jaxgfx.raycast.encode_rle`'s
+    ``mips="column"``, which keep every level's heights exact).
+    """
+    return jnp.ones_like(c) if rle.column_mips else c
+
+
 def _map_column(rle, ix, iz, lev, off, sx, sz):
     """Map cell (ix, iz) at level ``lev``: (inside the map, tile holds an instance, entry).
 

@@ -111,9 +111,10 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
     be up to ``1 / cos`` of the corner ray's angle larger on screen.  The thesis
     leaves its band length ``pd`` a free constant (4.5.4.1); a short one (96
     voxels for a 512x384, 55 degree view, where level-1 cells span 8 pixels)
-    makes far instances cheap but fat, with a one-voxel step where the bands
-    meet.  For a supersampled camera pass the original view, or ``pixels`` = the
-    factor, to count output pixels.
+    makes far instances cheap but fat, and with the thesis's cube mips a
+    one-voxel floor steps up where the bands meet (``encode_rle(...,
+    mips="column")`` keeps the heights exact).  For a supersampled camera pass
+    the original view, or ``pixels`` = the factor, to count output pixels.
 
     Args:
         cam: the camera (batched cameras give a batch of distances).

@@ -49,6 +49,7 @@ import numpy as np
 from jaxgfx._src.camera import Camera, camera_basis, focal_lengths
 from jaxgfx._src.voxel.codec import ELEMENT_WORDS, NO_ENTRY, pack_drawn
 from jaxgfx._src.voxel.grid import (
+    _cell_height,
     _column_head,
     _column_runs,
     _element_bottoms,
@@ -193,13 +194,14 @@ def _plane_step(
     safe, n, draw0, bottom0 = _column_head(rle, col, inside, sy[lev])
     # Elements above the eye come first in the column (top down).
     bottoms = _element_bottoms(rle, safe, bottom0, jE)[0]
-    m = jnp.sum((jE < n) & (bottoms.astype(jnp.float32) * c > ey)).astype(jnp.int32)
+    cy = _cell_height(rle, c)
+    m = jnp.sum((jE < n) & (bottoms.astype(jnp.float32) * cy > ey)).astype(jnp.int32)
     # This step's Ec elements in front-to-back order (see _rank).
     rank = k + jC
     j = jnp.clip(_unrank(rank, n, m), 0, E - 1)
     top, bottom, valid, drawn_before = _column_runs(rle, safe, n, draw0, bottom0, j)
-    y_lo = bottom.astype(jnp.float32) * c
-    y_hi = (top + 1).astype(jnp.float32) * c
+    y_lo = bottom.astype(jnp.float32) * cy
+    y_hi = (top + 1).astype(jnp.float32) * cy
     valid = valid & (rank < n)
     t_in = jnp.maximum(t, _TINY)
     t_o = jnp.maximum(t_out, t_in)

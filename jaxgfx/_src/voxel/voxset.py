@@ -229,13 +229,15 @@ def crop_voxels(vox: Voxels, lo, hi) -> Voxels:
 # ---------------------------------------------------------------------------
 
 
-def downsample_voxels(vox: Voxels) -> Voxels:
+def downsample_voxels(vox: Voxels, *, vertical: bool = True) -> Voxels:
     """One mip level (4.4.7): a coarse voxel is set where any of its 2x2x2 children is.
 
-    Its colour is the mean of the set children.
+    Its colour is the mean of the set children.  ``vertical=False``: 2x1x2 children
+    (x and z halved, y kept), for column mips.
     """
-    shape = tuple((s + 1) // 2 for s in vox.shape)
-    c = np.asarray(vox.coords, np.int64) // 2
+    f = np.array([2, 2 if vertical else 1, 2], np.int64)
+    shape = tuple(int((s + k - 1) // k) for s, k in zip(vox.shape, f, strict=True))
+    c = np.asarray(vox.coords, np.int64) // f
     k = _keys(c, shape)
     uk, inv, cnt = np.unique(k, return_inverse=True, return_counts=True)
     acc = np.zeros((len(uk), 3), np.float64)

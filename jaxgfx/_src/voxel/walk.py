@@ -17,7 +17,7 @@ import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, camera_basis
 from jaxgfx._src.voxel.codec import unpack_element
-from jaxgfx._src.voxel.grid import _level_tables, _map_column
+from jaxgfx._src.voxel.grid import _cell_height, _level_tables, _map_column
 
 __all__: list[str] = []  # private helpers of traverse.py
 
@@ -78,6 +78,8 @@ def _empty_box(rle, ix, iz, lev, col, has_tile, sx, sz):
 
 def _scene_top(rle) -> float:
     """Highest y any element of any mip level reaches (a coarse level rounds Y up)."""
+    if rle.column_mips:
+        return float(rle.level_shapes[0][1])
     return float(max(s[1] << lev for lev, s in enumerate(rle.level_shapes)))
 
 
@@ -268,7 +270,7 @@ def _free_step(
     safe = jnp.where(inside, col, 0)
     n = jnp.where(inside, rle.count[safe].astype(jnp.int32), 0)
     skip0 = unpack_element(rle.first[safe].astype(jnp.int32))[0]
-    y_hi = (sy[lev] - skip0).astype(jnp.float32) * c
+    y_hi = (sy[lev] - skip0).astype(jnp.float32) * _cell_height(rle, c)
     inv_in = 1.0 / jnp.maximum(t, _TINY)
     inv_out = 1.0 / jnp.maximum(t_out, jnp.maximum(t, _TINY))
     # Slopes of the column's span [0, y_hi] over the cell, as an element's.

@@ -25,6 +25,7 @@ from jaxgfx._src.voxel.codec import (
     unpack_drawn_rows,
 )
 from jaxgfx._src.voxel.grid import (
+    _cell_height,
     _column_elements,
     _dda_entry,
     _level_tables,
@@ -88,7 +89,7 @@ def ray_buffer_coords(cam: Camera, seg: Segments):
     return st + i, row, ok
 
 
-def _box_hit(fields, origins, dirs):
+def _box_hit(rle, fields, origins, dirs):
     """Pixel ray vs the box of a drawn element: ``(t_enter, t_exit)`` per pixel.
 
     ``fields`` = ``(top, bottom, cell x, cell z, level)`` arrays.  Written per
@@ -96,8 +97,9 @@ def _box_hit(fields, origins, dirs):
     """
     top, bottom, ix, iz, lev = fields
     c = jnp.left_shift(1, lev).astype(jnp.float32)
-    lo = (ix.astype(jnp.float32) * c, bottom.astype(jnp.float32) * c, iz.astype(jnp.float32) * c)
-    hi = (lo[0] + c, (top + 1).astype(jnp.float32) * c, lo[2] + c)
+    cy = _cell_height(rle, c)
+    lo = (ix.astype(jnp.float32) * c, bottom.astype(jnp.float32) * cy, iz.astype(jnp.float32) * c)
+    hi = (lo[0] + c, (top + 1).astype(jnp.float32) * cy, lo[2] + c)
     t_enter, t_exit = -jnp.inf, jnp.inf
     for k in range(3):
         inv = _safe_div(1.0, dirs[..., k], 1e-12)
@@ -166,7 +168,7 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         return hit, idx, box
 
     def candidate_t(hit, box):
-        t_enter, t_exit = _box_hit(box, origins, dirs)
+        t_enter, t_exit = _box_hit(rle, box, origins, dirs)
         entered = hit & (t_enter <= t_exit) & (t_exit >= 0.0)
         return jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
 
@@ -180,7 +182,7 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     # warp far slower carrying the candidate's index and depth together.
     best_d = jax.lax.optimization_barrier(best_d)
     hit, idx, box = lookup(best_d)
-    t_enter, t_exit = _box_hit(box, origins, dirs)
+    t_enter, t_exit = _box_hit(rle, box, origins, dirs)
     color, depth = _shade(rle, hit, t_enter, t_exit, box, word(WORD_COLOR, idx), origins, dirs)
     return color, depth, jnp.isfinite(best_t)
 
@@ -193,9 +195,9 @@ def _shade(rle, hit, t_enter, t_exit, box, cbase, origins, dirs):
     """
     t_hit = jnp.maximum(jnp.where(t_enter <= t_exit, t_enter, 0.5 * (t_enter + t_exit)), 0.0)
     top, bottom, _, _, lev = box
-    c = jnp.left_shift(1, lev).astype(jnp.float32)
+    cy = _cell_height(rle, jnp.left_shift(1, lev).astype(jnp.float32))
     y_hit = origins[..., 1] + dirs[..., 1] * t_hit
-    v = jnp.clip(jnp.floor(y_hit / c).astype(jnp.int32), bottom, top)
+    v = jnp.clip(jnp.floor(y_hit / cy).astype(jnp.int32), bottom, top)
     cidx = jnp.clip(cbase + (top - v), 0, rle.colors.shape[0] - 1)
     rgb = rle.colors[cidx].astype(jnp.float32) / 255.0
     return jnp.where(hit[..., None], rgb, 0.0), jnp.where(hit, t_hit, jnp.inf)
@@ -329,7 +331,7 @@ def warp_lists(
         idx = base + jnp.where(hit, entry, 0)
         word = lambda k, i: jnp.take(flat, i + k * cap, mode="clip")  # noqa: E731
         box = unpack_drawn_box(*(word(k, idx) for k in (WORD_HEIGHTS, WORD_X, WORD_Z_LEVEL)))
-        t_enter, t_exit = _box_hit(box, origins, dirs)
+        t_enter, t_exit = _box_hit(rle, box, origins, dirs)
         entered = hit & (t_enter <= t_exit) & (t_exit >= 0.0)
         cand_t = jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
         # Nearest candidate the ray enters; the nearest texel wins ties and
@@ -337,7 +339,7 @@ def warp_lists(
         best = jnp.argmin(cand_t, axis=0)[None]
         pick = lambda a: jnp.take_along_axis(a, best, axis=0)[0]  # noqa: E731
         box_b = tuple(pick(v) for v in box)
-        t_enter, t_exit = _box_hit(box_b, origins, dirs)
+        t_enter, t_exit = _box_hit(rle, box_b, origins, dirs)
         color, depth = _shade(
             rle, pick(hit), t_enter, t_exit, box_b, word(WORD_COLOR, pick(idx)), origins, dirs
         )

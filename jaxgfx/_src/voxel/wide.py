@@ -39,6 +39,7 @@ import numpy as np
 from jaxgfx._src.camera import Camera, camera_basis
 from jaxgfx._src.voxel.codec import ELEMENT_WORDS, NO_ENTRY, pack_drawn
 from jaxgfx._src.voxel.grid import (
+    _cell_height,
     _column_head,
     _column_runs,
     _level_tables,
@@ -147,7 +148,7 @@ def _columns_above(rle, ey, steps: int):
         mid = (lo + hi) // 2
         below = rle.tail_sums[0, jnp.clip(base + mid, 0, last)].astype(jnp.int32)
         b = jnp.where(mid == 0, bottom0, bottom0 - below)
-        above = (b.astype(jnp.float32) * c > ey) & (mid < hi)
+        above = (b.astype(jnp.float32) * _cell_height(rle, c) > ey) & (mid < hi)
         lo = jnp.where(above, mid + 1, lo)
         hi = jnp.where(above, hi, mid)
     return lo
@@ -266,8 +267,9 @@ def _wide_step(
         _once(v) for v in _column_runs(rle, e_safe, nc, g(draw0), g(bottom0), jj)
     )
     valid = valid & (slot < total) & ~done
-    y_lo = bottom.astype(jnp.float32) * c
-    y_hi = (top + 1).astype(jnp.float32) * c
+    cy = _cell_height(rle, c)
+    y_lo = bottom.astype(jnp.float32) * cy
+    y_hi = (top + 1).astype(jnp.float32) * cy
     e_in = _once_f(jnp.maximum(g(t_in), _TINY))
     e_out = _once_f(jnp.maximum(g(t_out), e_in))
     e_smin, e_smax = _slopes(consts, y_lo, y_hi, ey, 1.0 / e_in, 1.0 / e_out)
