@@ -358,7 +358,7 @@ def run(args):
     # fixed camera near the map's corner looks across it, so more instances
     # mean more trees behind the first; mip levels + LOD bands and the early
     # exit of the plane loop keep the traversal short.
-    tree = scenes[1][1]
+    tree = next(v for name, v, *_ in scenes if name == "tree")  # kept by any --scenes
     variants = [] if args.no_instances else [("trees", tree)]
     if not quick and variants:
         # The thesis's forests stand on terrain: the same tree on a one-voxel
