@@ -274,6 +274,7 @@ def test_reverse_mode_through_vmap():
 
 def test_stacked_frames_visibility_matches_single():
     # visibility(frames=B) (one B*H*W z-buffer) gives each frame's own result.
+    from jaxgfx._src.camera import world_to_camera_soa
     from jaxgfx._src.zbuffer import _frame_setup, visibility
 
     mesh = trimesh.creation.icosphere(subdivisions=1)
@@ -281,7 +282,8 @@ def test_stacked_frames_visibility_matches_single():
     f = jnp.asarray(mesh.faces, jnp.int32)
     cams = [look_at([0.3, 0.2, 3.0], [0, 0, 0], 50, 16, 12, 0.1, 9.0),
             look_at([-2.0, 1.0, 2.0], [0, 0, 0], 50, 16, 12, 0.1, 9.0)]  # fmt: skip
-    setups = [jax.jit(_frame_setup, static_argnums=(3, 4))(c, v, f, False, 2) for c in cams]
+    setup = jax.jit(lambda c: _frame_setup(c, v, f, False, 2, world_to_camera_soa(c, v)))
+    setups = [setup(c) for c in cams]
     both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b], -1), *setups)
     vis = jax.jit(visibility, static_argnums=(2, 3, 4))
     inv2, fid2 = vis(cams[0], both, 2, 64, 2)

@@ -381,15 +381,14 @@ def _zbuffer(cam, setup, block, chunk, frames, zbuf, ibuf):
     return zbuf, ibuf
 
 
-def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam=None, half=None):
+def _frame_setup(cam, vertices, faces, cull_backfaces, block, p_cam, half=None):
     """Clipping and setup of one frame (camera, vertices and faces of one item).
 
-    ``p_cam``: the vertices already in camera space as (3, V), if at hand.  ``half``: 0 or
-    1 sets up only that half of the clipped slots (see :func:`_clip_halves`); ``None``
-    both, as :func:`clip_near` lays them out.
+    ``p_cam``: the vertices in camera space as (3, V) (``world_to_camera_soa``); the world
+    positions are read only for back-face culling.  ``half``: 0 or 1 sets up only that half
+    of the clipped slots (see :func:`_clip_halves`); ``None`` both, as :func:`clip_near`
+    lays them out.
     """
-    if p_cam is None:
-        p_cam = world_to_camera_soa(cam, vertices)
     corners = p_cam[:, faces.T]
     if half == "front":  # no face crosses the plane: no clipping arithmetic
         n_in = (corners[2] >= cam.near).sum(0)

@@ -275,8 +275,8 @@ def encode_rle(vox: Voxels, *, levels: int = 1, mips: str = "cube") -> RLEVolume
             ``2^l`` voxels high, so where two LOD bands meet, a surface can step up by up to
             ``2^l - 1`` voxels (a seam line on flat ground).  ``"column"``: 2x1x2
             down-sampling, every level keeps the level-0 heights, so bands join without
-            steps; the coarse levels hold more elements (tall surfaces keep their
-            vertical runs).
+            steps; the coarse levels hold more voxels (tall surfaces keep their vertical
+            runs).
 
     Returns:
         The :class:`RLEVolume` (NumPy-backed leaves; ``jax.device_put`` it for speed).

@@ -77,10 +77,10 @@ def _empty_box(rle, ix, iz, lev, col, has_tile, sx, sz):
 
 
 def _scene_top(rle) -> float:
-    """Highest y any element of any mip level reaches (a coarse level rounds Y up)."""
-    if rle.column_mips:
-        return float(rle.level_shapes[0][1])
-    return float(max(s[1] << lev for lev, s in enumerate(rle.level_shapes)))
+    """Highest y any element of any mip level reaches (a coarse cube-mip level rounds Y up)."""
+    return float(
+        max(s[1] << (0 if rle.column_mips else lev) for lev, s in enumerate(rle.level_shapes))
+    )
 
 
 def _slopes(consts, y_lo, y_hi, ey, inv_in, inv_out):
