@@ -180,6 +180,25 @@ def test_matches_reference_dda(scene, name, cam):
         assert st["elements_rendered"] <= st["elements_processed"] <= st["elements_total"]
 
 
+def test_passes_of_a_small_pool_give_the_frame_of_one_pool(scene):
+    # A pool too small for the frame's lists: the frame is walked in passes, each
+    # warping the planes it walked, and the merged warp is the one-pass frame bit
+    # for bit (the same candidate per pixel: nearest entry, then candidate order).
+    _, rle, _, _ = scene
+    small = RC.RenderSettings(pool_size=400)
+    passes = []
+    for name, cam in CAMERAS:
+        one, split = render(rle, cam), render(rle, cam, settings=small)
+        assert int(one.stats["passes"]) == 1, name
+        assert int(split.stats["buffer_overflow"]) == 0, name
+        passes.append(int(split.stats["passes"]))
+        np.testing.assert_array_equal(np.asarray(split.depth), np.asarray(one.depth), name)
+        np.testing.assert_array_equal(np.asarray(split.color), np.asarray(one.color), name)
+        for k in ("elements_rendered", "refined"):
+            assert int(split.stats[k]) == int(one.stats[k]), (name, k)
+    assert max(passes) >= 3, passes
+
+
 def test_half_width_pixels_match_reference(scene):
     # The thesis's 2x1 AA frame: the same view on pixels half as wide.  Every
     # step of the per-plane method (vp, segments, plane extents, Eq. 4.5 rows,

@@ -299,8 +299,9 @@ def warn_lost_elements(stats: dict, settings, cam) -> None:
     """Tells on stderr that a frame lost drawn elements, and the option that keeps them.
 
     The renderer keeps ``buffer_size`` drawn elements per plane and ``pool_size`` per
-    frame (static sizes), drops the farthest past either and counts them
-    (``stats["buffer_overflow"]``); the frame then misses part of the scene.
+    pass (static sizes; a frame that draws more takes more passes), drops the farthest
+    past a plane's buffer or the lists of one chunk of planes past the pool and counts
+    them (``stats["buffer_overflow"]``); the frame then misses part of the scene.
 
     Args:
         stats: the frame's stats as ints (``buffer_overflow``, ``elements_rendered``).
@@ -317,7 +318,7 @@ def warn_lost_elements(stats: dict, settings, cam) -> None:
     if drawn > pool:
         # A quarter more than this frame drew, so a nearby view fits too; whole KiB.
         fixes.append(f"--pool-size {-(-drawn * 5 // 4 // 1024) * 1024}")
-    if lost > max(drawn - pool, 0):
+    if drawn <= pool:  # the pool was not the cause
         # Each drawn element covers at least one new row of its plane: one per row fits.
         fixes.append(f"--buffer-size {max(cam.width, cam.height)}")
     print(
@@ -556,9 +557,10 @@ def register(subparsers) -> None:
                    default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
     r.add_argument("--pool-size", type=positive_int, default=None,
-                   help="drawn elements kept per frame (default 3 x oversample x W x H at "
-                   "the --aa grid); a frame that needs more loses its farthest elements and "
-                   "says so on stderr")  # fmt: skip
+                   help="drawn elements kept per pass (default min(3 x oversample x W x H "
+                   "at the --aa grid, 2^19)); a frame that draws more takes more passes, and "
+                   "one whose chunk of planes alone needs more loses its farthest elements "
+                   "and says so on stderr")  # fmt: skip
     r.add_argument("--buffer-size", type=positive_int, default=None,
                    help="drawn elements kept per plane (default max(64, max(W, H) / 2) at "
                    "the --aa grid; max(W, H) always suffices); as --pool-size")  # fmt: skip

@@ -30,7 +30,12 @@ from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.traverse import traverse_lists
-from jaxgfx._src.voxel.warp import refine_hits, warp_lists
+from jaxgfx._src.voxel.warp import (
+    empty_warp_tiles,
+    refine_hits,
+    warp_lists,
+    warp_tiles_image,
+)
 from jaxgfx._src.voxel.wide import traverse_wide
 
 __all__ = [
@@ -85,14 +90,17 @@ def default_num_planes(
 
 
 def default_pool_size(width: int, height: int, oversample: float = 1.0) -> int:
-    """Static element pool of a frame: ``3 oversample W H`` drawn elements (all planes' lists).
+    """Static element pool of one pass of the one-cell walk: ``min(3 oversample W H, 2^19)``.
 
-    Each drawn element is the first writer of at least one ray-buffer texel, and a frame
-    has about ``oversample W H`` texels (up to ~2.5x that with the vanishing point on
-    screen), so this holds every frame measured here; ``stats["buffer_overflow"]`` says by
-    how much a frame missed (its farthest elements are dropped).
+    Each drawn element is the first writer of at least one ray-buffer texel, and a
+    frame has about ``oversample W H`` texels (up to ~2.5x that with the vanishing
+    point on screen), so up to ``3 oversample W H`` drawn elements a frame take
+    one pass.  Past ``2^19`` (10.5 MB) a frame that draws more takes more passes
+    instead: the pool is a fresh buffer every frame, and the bench's orbit views
+    draw at most 0.42 M elements at 512x384 with 2x1 AA (``untitled.vxl``), views
+    from straight above up to 1.6 M.
     """
-    return int(math.ceil(3 * oversample * width * height))
+    return int(min(math.ceil(3 * oversample * width * height), 1 << 19))
 
 
 def default_max_steps(rle) -> int:
@@ -158,13 +166,13 @@ class RenderSettings:
             Eq. 4.4, default 2).
         buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
             see ``stats["buffer_overflow"]``.
-        pool_size: drawn elements kept per frame, all planes' lists back to back
-            (None: :func:`default_pool_size`, ``3 oversample W H``); see
-            ``stats["buffer_overflow"]``.  A frame
-            has about ``oversample W H`` ray-buffer texels, up to about ``2.5
-            oversample W H`` with the vanishing point on screen, and each drawn
-            element is the first writer of at least one: a terrain seen from
-            above (``untitled.vxl``, 88 degrees down) draws ``2.2 oversample W H``.
+        pool_size: one-cell walk: drawn elements a pass keeps, its planes' lists
+            back to back (None: :func:`default_pool_size`).  A frame whose lists do
+            not fit is walked in passes, each warping the planes it walked
+            (``stats["passes"]``): the same frame.  The pool is a fresh buffer
+            every frame, cleared before use, and on the CPU the frame pays the
+            page faults of all of it: one pool for the most a frame can draw at
+            512x384 with 2x1 AA (47 MB) cost 15 ms a frame.
         refine_steps: if > 0 (default 16), pixels whose ray entered no candidate
             element re-walk their own ray that many voxels from just before the
             neighbourhood's depth (not in the thesis).
@@ -390,8 +398,7 @@ def _frame_kernel(s: RenderSettings):
 def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     """One frame of :func:`render_rle` (its arguments already checked and on the device)."""
     num_planes, max_steps, oversample = s.num_planes, s.max_steps, s.oversample
-    buffer_size, refine_steps, neighbors = s.buffer_size, s.refine_steps, s.neighbors
-    refine_budget, elements_per_step = s.refine_budget, s.elements_per_step
+    buffer_size, elements_per_step = s.buffer_size, s.elements_per_step
     if num_planes is None:
         num_planes = default_num_planes(
             cam.width,
@@ -416,8 +423,22 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
     wide = s.traversal == "wide"
+    # The accelerator's form (every plane in every step) warps every busy tile in
+    # one step and re-walks every uncertain pixel in one batch: its dependent steps
+    # stay a few tens per frame.  Plane slots are the CPU's form: batched warp.
+    batched = wide and s.slots is None
+    warp = functools.partial(
+        warp_lists,
+        rle,
+        cam,
+        seg,
+        neighbors=s.neighbors,
+        batch_tiles=(1 << 30) if batched else None,
+        scan_width=8 if batched else 1,
+        with_steps=True,
+    )
     if wide:
-        pool, start, drawn, coverage, first, stats, trav_steps = traverse_wide(
+        lists = traverse_wide(
             rle,
             cam,
             seg,
@@ -429,54 +450,57 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             block_elements=s.block_elements,
             slots=s.slots,
         )
-    else:
-        pool, start, drawn, coverage, first, stats, trav_steps = traverse_lists(
-            rle,
-            cam,
-            seg,
-            planes,
-            rows=rows,
-            max_steps=max_steps,
-            lod_distance=lod,
-            buffer_size=buffer_size,
-            elements_per_step=elements_per_step,
-            short_rows=cam.height,
-            pool_size=(
-                default_pool_size(cam.width, cam.height, oversample)
-                if s.pool_size is None
-                else s.pool_size
-            ),
-            # Chunks as wide as without the far-scene planes (a chunk's loop runs
-            # until its slowest plane is done): 64 chunks of the thesis budget.
-            chunks=max(
-                64,
-                -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64)),
-            ),
-            with_steps=True,
-        )
-    # The accelerator's form (every plane in every step) warps every busy tile in
-    # one step and re-walks every uncertain pixel in one batch: its dependent steps
-    # stay a few tens per frame.  Plane slots are the CPU's form: batched warp.
-    wide = wide and s.slots is None
-    color, depth, entered, warp_steps = warp_lists(
+        warped = warp(*lists[:5])
+        return _finish_frame(rle, cam, seg, s, lists, warped, jnp.int32(1), batched=batched)
+
+    def consume(lists, mine, acc):
+        # The planes of one pass: their candidates, merged into the frame's warp.
+        *tiles, steps = warp(*lists[:5], plane_mask=mine, tiles=acc[0])
+        return tuple(tiles), acc[1] + steps
+
+    lists, (tiles, warp_steps), passes = traverse_lists(
         rle,
         cam,
         seg,
-        pool,
-        start,
-        drawn,
-        coverage,
-        first,
-        neighbors=neighbors,
-        batch_tiles=(1 << 30) if wide else None,
-        scan_width=8 if wide else 1,
+        planes,
+        rows=rows,
+        max_steps=max_steps,
+        lod_distance=lod,
+        buffer_size=buffer_size,
+        elements_per_step=elements_per_step,
+        short_rows=cam.height,
+        pool_size=(
+            default_pool_size(cam.width, cam.height, oversample)
+            if s.pool_size is None
+            else s.pool_size
+        ),
+        # Chunks as wide as without the far-scene planes (a chunk's loop runs
+        # until its slowest plane is done): 64 chunks of the thesis budget.
+        chunks=max(
+            64,
+            -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64)),
+        ),
         with_steps=True,
+        consume=consume,
+        acc=(empty_warp_tiles(cam), jnp.int32(0)),
     )
+    warped = (*warp_tiles_image(cam, tiles), warp_steps)
+    return _finish_frame(rle, cam, seg, s, lists, warped, passes, batched=False)
+
+
+def _finish_frame(
+    rle, cam, seg, s: RenderSettings, lists, warped, passes, *, batched: bool
+) -> RenderOutput:
+    """The re-walk of a warped frame; the frame's statistics."""
+    stats, trav_steps = lists[5], lists[6]
+    color, depth, entered, warp_steps = warped
+    W, H = cam.width, cam.height
     refined = jnp.int32(0)
     refine_steps_taken = jnp.int32(0)
+    refine_steps = s.refine_steps
+    budget = (W * H) // 32 if s.refine_budget is None else s.refine_budget
     if refine_steps > 0:
-        budget = (cam.width * cam.height) // 32 if refine_budget is None else refine_budget
-        batch = budget if wide else 1024
+        batch = budget if batched else 1024
         color, depth, refined = refine_hits(
             rle,
             cam,
@@ -502,6 +526,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             refine_overflow=jnp.maximum(refined - budget, 0) if refine_steps > 0 else refined,
             traversal_steps=trav_steps,
             loop_iterations=trav_steps + warp_steps + refine_steps_taken,
+            passes=passes,
         ),
     )
 

@@ -320,6 +320,8 @@ def traverse_lists(
     free_steps: int = 4,
     short_rows: int | None = None,
     with_steps: bool = False,
+    consume=None,
+    acc=None,
 ):
     """Renders a batch of planes into their ray-buffer columns (4.5.4).
 
@@ -374,6 +376,17 @@ def traverse_lists(
             (None: every chunk has ``rows``).  The same lists either way.
         with_steps: also return the dependent loop steps taken (every chunk's
             steps, free steps and copy steps, one after another).
+        consume: None: one pass; the pool keeps ``pool_size`` elements and drops
+            the rest (counted).  A function ``consume(lists, mine, acc) -> acc``:
+            the frame is walked in passes, each filling the pool from its start
+            with the next chunks until one does not fit (that one starts the next
+            pass), then handing ``consume`` this function's return tuple and
+            ``mine`` (P,) bool, the planes the pass walked (only their lists are
+            in the pool).  The pool is a fresh buffer every frame, cleared before
+            use; a small one that most frames fill once keeps the frame's memory
+            (and on the CPU its page faults) small, and a frame that draws more
+            takes more passes instead of a larger pool.
+        acc: with ``consume``: its initial accumulator (a pytree).
 
     Returns:
         ``(pool (5, pool_size) int32, start (P,) int32, drawn (P,) int32, coverage
@@ -385,7 +398,9 @@ def traverse_lists(
         in each coverage word (``NO_ENTRY`` for none; a row's writer comes at or
         after its word's), and the counts of elements in the visited columns,
         elements processed before the plane was done, elements drawn, drawn elements
-        dropped by a full list or pool.
+        dropped by a full list or pool.  With ``consume``: ``(those, acc, passes)``,
+        the last pass's tuple (its per-plane arrays hold every plane's values), the
+        final accumulator and the number of passes () int32.
     """
     E = rle.max_elements
     K = max(64, rows // 2) if buffer_size is None else buffer_size
@@ -419,7 +434,7 @@ def traverse_lists(
         short = jnp.all((by_chunk >= total) | (by_chunk < seg.start[2]), axis=1)
         groups = [(n_short, live & short), (n_words, live & ~short)]
 
-    def chunk_fn(order, nw):
+    def chunk_fn(order, nw, stop):
         step = jax.vmap(
             lambda q, c: _plane_step(
                 rle, cam, q, c, lod_distance=lod_distance, K=K, n_words=nw, Ec=Ec
@@ -428,15 +443,15 @@ def traverse_lists(
         free = jax.vmap(
             lambda q, c: _free_step(rle, cam, q, c, lod_distance=lod_distance, n_words=nw)
         )
-        return functools.partial(chunk, order, nw, step, free)
+        return functools.partial(chunk, order, nw, step, free, stop)
 
-    def chunk(order, nw, step, free, i, bufs):
+    def chunk(order, nw, step, free, stop, i, bufs):
         # One loop per chunk, so it stops when its own planes are done.  Its
         # lists live in one chunk-sized buffer reused by every chunk (it stays
         # in cache), and only the elements drawn are copied into the frame's
         # pool: per-plane lists of K slots for the whole frame cost a fresh
         # P K-word buffer per frame, more than the traversal of a small scene.
-        lists, pool, used, start, drawn, cov, word_first, stats, n_it = bufs
+        lists, pool, used, start, drawn, cov, word_first, stats, n_it, full, pass_of, pass_id = bufs
         base = order[i] * size
         part = jax.lax.dynamic_slice(padded, (base,), (size,))
         consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=nw))(
@@ -480,7 +495,13 @@ def traverse_lists(
         # The chunk's lists, back to back from the pool's first free slot.
         kept = jnp.minimum(nbuf, K)
         first = used + _prefix_sum(kept) - kept
-        stored = jnp.clip(pool_size - first, 0, kept)
+        room = pool.shape[1]
+        stored = jnp.clip(room - first, 0, kept)
+        # stop: a chunk whose lists do not all fit is not committed (the pool's
+        # fill stays and its planes are not marked; the next pass walks it
+        # again) and the pass ends.  An empty pool takes any chunk (what it
+        # cannot hold is dropped and counted), so every pass moves on.
+        fits = ((used + jnp.sum(kept) <= room) | (used == 0)) if stop else jnp.bool_(True)
 
         # Copied 8 slots per plane at a time up to the chunk's longest list
         # (most are short); a loop, as a cond would copy the whole pool.
@@ -497,7 +518,7 @@ def traverse_lists(
         return (
             lists,
             pool,
-            used + jnp.sum(stored),
+            used + jnp.where(fits, jnp.sum(stored), 0),
             put(start, first),
             put(drawn, stored),
             put(cov, jnp.pad(state.cov, ((0, 0), (0, n_words - nw)))),
@@ -508,9 +529,37 @@ def traverse_lists(
             put(stats, st),
             # Dependent loop steps: the chunk's steps, its free steps and its copy steps.
             n_it + state.it[0] + n_free + (jnp.max(stored) + 7) // 8,
+            full | ~fits,
+            put(pass_of, jnp.where(fits, pass_id, -1) + jnp.zeros((size,), jnp.int32)),
+            pass_id,
         )
 
-    bufs = (
+    plan = [
+        (nw, jnp.nonzero(mine, size=n_chunks, fill_value=0)[0], jnp.sum(mine.astype(jnp.int32)))
+        for nw, mine in groups
+    ]
+
+    def run(outs, starts, stop: bool):
+        # Each group's chunks from starts[g]; with stop, until a chunk does not fit.
+        ends = []
+        for g, (nw, order, n) in enumerate(plan):
+            body = chunk_fn(order, nw, stop)
+
+            def one_chunk(c, body=body):
+                o = body(c[0], c[1])
+                return jnp.where(o[9], c[0], c[0] + 1), o
+
+            going = lambda c, n=n: (c[0] < n) & ~c[1][9]  # noqa: E731
+            i, outs = jax.lax.while_loop(going, one_chunk, (starts[g], outs))
+            ends.append(i)
+        return outs, ends
+
+    def result(outs):
+        pool, per_plane, n_it = outs[1], outs[3:8], outs[8]
+        out = (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
+        return out + (n_it,) if with_steps else out
+
+    outs0 = (
         jnp.zeros((size, ELEMENT_WORDS, K), jnp.int32),
         jnp.zeros((ELEMENT_WORDS, pool_size), jnp.int32),
         jnp.int32(0),
@@ -520,11 +569,28 @@ def traverse_lists(
         jnp.full((Pp, n_words), NO_ENTRY, jnp.int32),
         jnp.zeros((Pp, 4), jnp.int32),
         jnp.int32(0),
+        jnp.bool_(False),
+        jnp.full((Pp,), -1, jnp.int32),
+        jnp.int32(0),
     )
-    outs = bufs
-    for nw, mine in groups:
-        order = jnp.nonzero(mine, size=n_chunks, fill_value=0)[0]
-        outs = jax.lax.fori_loop(0, jnp.sum(mine.astype(jnp.int32)), chunk_fn(order, nw), outs)
-    pool, per_plane, n_it = outs[1], outs[3:8], outs[8]
-    out = (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
-    return out + (n_it,) if with_steps else out
+    starts0 = [jnp.int32(0)] * len(plan)
+    if consume is None:
+        return result(run(outs0, starts0, False)[0])
+
+    # Passes: each fills the pool from its first element with the next chunks
+    # until one does not fit, and hands the lists of the planes it walked to
+    # consume; the pool is reused (its contents never cleared again).
+    def unfinished(c):
+        return jnp.any(jnp.stack([c[0][g] < n for g, (_, _, n) in enumerate(plan)]))
+
+    def one_pass(c):
+        starts, outs, acc = c
+        outs = outs[:2] + (jnp.int32(0),) + outs[3:9] + (jnp.bool_(False), outs[10], outs[11] + 1)
+        outs, ends = run(outs, starts, True)
+        mine = outs[10] == outs[11]
+        acc = consume(result(outs), mine if Pp == P else mine[:P], acc)
+        return ends, outs, acc
+
+    # A frame without live chunks takes no pass: acc stays as given.
+    _, outs, acc = jax.lax.while_loop(unfinished, one_pass, (starts0, outs0, acc))
+    return result(outs), acc, outs[11]

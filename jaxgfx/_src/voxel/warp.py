@@ -34,7 +34,19 @@ from jaxgfx._src.voxel.grid import (
 )
 from jaxgfx._src.voxel.planes import Segments, _sgn_w
 
-__all__ = ["ray_buffer_coords", "warp_ray_buffer", "warp_lists", "refine_pixel", "refine_hits"]
+__all__ = [
+    "ray_buffer_coords",
+    "warp_ray_buffer",
+    "warp_lists",
+    "empty_warp_tiles",
+    "warp_tiles_image",
+    "NO_CANDIDATE",
+    "refine_pixel",
+    "refine_hits",
+]
+
+NO_CANDIDATE = 2**15 - 1
+"""Candidate order of a pixel that no candidate of a pass reached (after every real one)."""
 
 
 # ---------------------------------------------------------------------------
@@ -218,6 +230,8 @@ def warp_lists(
     batch_tiles: int | None = None,
     scan_width: int = 1,
     with_steps: bool = False,
+    plane_mask=None,
+    tiles=None,
 ):
     """:func:`warp_ray_buffer` from the unresolved lists, touching only covered pixels.
 
@@ -248,10 +262,20 @@ def warp_lists(
             frame; fewer, wider steps).
         with_steps: also return the dependent loop steps taken (list-scan steps
             summed over the batches).
+        plane_mask: optional (P,) bool, the planes whose lists are present (one
+            pass of :func:`~jaxgfx.raycast.traverse_lists`): a pixel's other
+            candidates are left out.  Requires ``tiles``.
+        tiles: with ``plane_mask``: the frame's warp so far as tiles
+            (:func:`empty_warp_tiles`).  A pixel keeps the candidate that comes
+            first of its choice so far and this pass's (nearer entry, then the
+            candidate order), which is the candidate one warp over all planes
+            picks, so the passes of a frame give that warp's frame
+            (:func:`warp_tiles_image`).
 
     Returns:
         ``(color (H, W, 3), depth (H, W), entered (H, W) bool)`` as
-        :func:`warp_ray_buffer`, and ``steps`` () int32 with ``with_steps``.
+        :func:`warp_ray_buffer` (with ``tiles``: the updated tiles instead), and
+        ``steps`` () int32 with ``with_steps``.
     """
     P, cap = coverage.shape[0], pool.shape[1]
     n_words = coverage.shape[1]
@@ -276,6 +300,8 @@ def warp_lists(
     row_ok, row, planes = candidates(px0, py0)
     words = jnp.take(cov_flat, planes * n_words + (row >> 5)[None], mode="clip")
     bits = (words >> (row & 31).astype(jnp.uint32)[None]) & jnp.uint32(1)
+    if plane_mask is not None:
+        bits = jnp.where(plane_mask[planes], bits, jnp.uint32(0))
     covered = row_ok & jnp.any(bits != 0, axis=0)
     ty, tx = -(-H // tile), -(-W // tile)
     n_tiles = ty * tx
@@ -300,6 +326,9 @@ def warp_lists(
         dirs = gx[..., None] * right + gy[..., None] * up + forward
         origins = jnp.broadcast_to(cam.position, dirs.shape)
         n = jnp.where(row_ok[None], drawn[planes], 0)
+        if plane_mask is not None:
+            present = plane_mask[planes]
+            n = jnp.where(present, n, 0)
         base = start[planes]
         none = jnp.int32(NO_ENTRY)
         if first is None:
@@ -336,7 +365,14 @@ def warp_lists(
         cand_t = jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
         # Nearest candidate the ray enters; the nearest texel wins ties and
         # keeps the pixel where the ray enters none.
-        best = jnp.argmin(cand_t, axis=0)[None]
+        best = jnp.argmin(cand_t, axis=0)
+        if plane_mask is not None:
+            # As one pass over all planes chooses: the nearest entered candidate,
+            # else the nearest texel's (only from the pass that holds its plane).
+            none = ~jnp.isfinite(jnp.min(cand_t, axis=0))
+            key_i = jnp.where(none, jnp.where(present[0], 0, NO_CANDIDATE), best)
+            key_i = key_i.astype(jnp.int16)
+        best = best[None]
         pick = lambda a: jnp.take_along_axis(a, best, axis=0)[0]  # noqa: E731
         box_b = tuple(pick(v) for v in box)
         t_enter, t_exit = _box_hit(rle, box_b, origins, dirs)
@@ -344,6 +380,10 @@ def warp_lists(
             rle, pick(hit), t_enter, t_exit, box_b, word(WORD_COLOR, pick(idx)), origins, dirs
         )
         out = (color, depth, jnp.any(entered, axis=0))
+        if plane_mask is not None:
+            shape = (batch, tile * tile)
+            old = tuple(jnp.take(buf, tid, axis=0, mode="clip") for buf in bufs)
+            out = _merge_choice(old, tuple(v.reshape(shape + v.shape[3:]) for v in out + (key_i,)))
         # Tile ids past the busy ones are n_tiles: dropped.
         bufs = tuple(
             buf.at[tid].set(v.reshape((batch,) + buf.shape[1:]), mode="drop")
@@ -351,21 +391,67 @@ def warp_lists(
         )
         return bufs, steps + taken
 
-    bufs = (
-        jnp.zeros((n_tiles, tile * tile, 3), jnp.float32),
-        jnp.full((n_tiles, tile * tile), jnp.inf, jnp.float32),
-        jnp.zeros((n_tiles, tile * tile), bool),
-    )
+    if plane_mask is None:
+        bufs = empty_warp_tiles(cam, tile)[:3]
+    else:
+        if tiles is None:
+            raise ValueError("warp_lists: plane_mask needs tiles (empty_warp_tiles)")
+        bufs = tiles
     bufs, steps = jax.lax.fori_loop(
         0, (n_busy + batch - 1) // batch, warp_batch, (bufs, jnp.int32(0))
     )
+    out = bufs if plane_mask is not None else warp_tiles_image(cam, bufs, tile)
+    return out + (steps,) if with_steps else out
+
+
+def empty_warp_tiles(cam: Camera, tile: int = 8):
+    """A frame's warp before any pass (:func:`warp_lists` ``tiles``): nothing drawn.
+
+    Returns:
+        ``(color (T, tile^2, 3), depth (T, tile^2), entered (T, tile^2) bool,
+        order (T, tile^2) int16)`` over the ``T`` screen tiles of ``tile x tile``
+        pixels, row by row; ``order`` is the chosen candidate's place
+        (:data:`NO_CANDIDATE`: none yet).
+    """
+    n = -(-cam.height // tile) * -(-cam.width // tile)
+    return (
+        jnp.zeros((n, tile * tile, 3), jnp.float32),
+        jnp.full((n, tile * tile), jnp.inf, jnp.float32),
+        jnp.zeros((n, tile * tile), bool),
+        jnp.full((n, tile * tile), NO_CANDIDATE, jnp.int16),
+    )
+
+
+def warp_tiles_image(cam: Camera, tiles, tile: int = 8):
+    """``(color (H, W, 3), depth (H, W), entered (H, W))`` of warp tiles."""
+    H, W = cam.height, cam.width
+    ty, tx = -(-H // tile), -(-W // tile)
 
     def image(buf):
         img = buf.reshape((ty, tx, tile, tile) + buf.shape[2:]).swapaxes(1, 2)
         return img.reshape((ty * tile, tx * tile) + buf.shape[2:])[:H, :W]
 
-    out = tuple(image(b) for b in bufs)
-    return out + (steps,) if with_steps else out
+    return tuple(image(b) for b in tiles[:3])
+
+
+def _merge_choice(a, b):
+    """Per pixel, the warp choice of ``a`` or ``b`` that comes first (passes of one frame).
+
+    ``(color, depth, entered, order)`` each; the pixel keeps the nearer entered
+    candidate, on a tie (or where neither entered) the one earlier in the
+    candidate order, and is entered if either is.
+    """
+    ca, da, ea, ia = a
+    cb, db, eb, ib = b
+    ta = jnp.where(ea, da, jnp.inf)
+    tb = jnp.where(eb, db, jnp.inf)
+    take_b = (tb < ta) | ((tb == ta) & (ib < ia))
+    return (
+        jnp.where(take_b[..., None], cb, ca),
+        jnp.where(take_b, db, da),
+        ea | eb,
+        jnp.where(take_b, ib, ia),
+    )
 
 
 # ---------------------------------------------------------------------------
