@@ -9,7 +9,11 @@ the same run with the same cameras, the baselines: the per-pixel 3-D DDA
 (``reference_render``), splatting (one camera-facing quad per surface voxel
 through the rasterizer, 4.6.3) and, for meshes, the mesh's own triangles
 through the rasterizer.  Ratios are baseline time / our time.  Compile time
-(first call) is reported apart from the steady-state time.
+(first call) is reported apart from the steady-state time.  Beside the default:
+the wide traversals, and the one-cell walk with one element pool for the most a
+frame can draw (``one_pool``, a single pass; the default's pool is bounded and a
+frame that draws more takes more ``passes``), its frames taking turns with the
+default's (``ab_ours_ms``).
 
 The peers a user would pick instead (``experiments._rle_peers``): Embree
 (open3d, all cores) on the same voxels' exposed cube faces and on the
@@ -71,6 +75,15 @@ LOD_DISTANCE = 96.0
 # steps, more of them).
 WIDE = RC.RenderSettings(traversal="wide")
 WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
+
+
+def one_pool(w: int, h: int) -> RC.RenderSettings:
+    """The default settings with one element pool for the most a frame draws (one pass).
+
+    What the one-cell walk used before its bounded pool (``pool_size``): the
+    ``one_pool`` columns time it beside the default.
+    """
+    return RC.RenderSettings(pool_size=3 * 2 * w * h)
 
 
 def markdown(rows, headers) -> str:
@@ -220,6 +233,21 @@ def clock(fn, cam) -> float:
     return time.perf_counter() - t0
 
 
+def interleaved(fns, cams, rounds: int) -> list[float]:
+    """Steady seconds per frame of each of ``fns``, their frames taking turns.
+
+    Each round renders every camera with every function in turn, so a drift of
+    the shared box lands on all of them alike (the fastest frame per camera,
+    averaged over the cameras, as :func:`steady`).
+    """
+    times: list[list[list[float]]] = [[[] for _ in cams] for _ in fns]
+    for _ in range(rounds):
+        for k, fn in enumerate(fns):
+            for j, cam in enumerate(cams):
+                times[k][j].append(clock(fn, cam))
+    return [steady(t) for t in times]
+
+
 def timed(fn, cams, repeats=1):
     """(first-call seconds, steady seconds per frame, the last camera's output).
 
@@ -303,6 +331,7 @@ def run(args):
                 el_rendered_M=round(stats["elements_rendered"] / 1e6, 3),
                 overflow=stats["buffer_overflow"],
                 ours_ms=round(1e3 * ours, 1),
+                passes=stats["passes"],
                 ours_compile_s=round(first - ours, 1),
                 Melem_per_s=round(stats["elements_processed"] / ours / 1e6, 2),
                 iters=stats["loop_iterations"],
@@ -313,6 +342,16 @@ def run(args):
             # CPU the one-cell walk) agree on hit / miss.  Quick: none (CI time;
             # the tests render both traversals).
             variants = () if quick else (("wide", WIDE), ("slots", WIDE_SLOTS))
+            if not quick:
+                # One frame-sized pool against the default bounded one, frames
+                # taking turns (a few per cent is the question).
+                p1 = one_pool(*cams[0].shape[::-1])
+                f_p1 = lambda c, r=rle, st=p1: render(r, c, settings=st)  # noqa: E731
+                jax.block_until_ready(f_p1(cams[0]))
+                t_a, t_b = interleaved([f_ours, f_p1], cams, 3)
+                row["ab_ours_ms"] = round(1e3 * t_a, 1)
+                row["one_pool_ms"] = round(1e3 * t_b, 1)
+                row["one_pool/ours"] = round(t_b / t_a, 2)
             for label, st in variants:
                 f_t = lambda c, r=rle, st=st: render(r, c, settings=st)  # noqa: E731
                 _, t_t, o_t = timed(f_t, cams, reps)
@@ -563,11 +602,18 @@ def main(argv=None) -> int:
         help="mip kind of the instance table's objects (encode_rle's mips=)",
     )
     ap.add_argument("--sizes", default=None, help="frame sizes, e.g. 512x384 (default: all)")
+    ap.add_argument(
+        "--fresh-memory",
+        action="store_true",
+        help="leave malloc as a plain script has it (no jaxgfx.keep_freed_memory): "
+        "every frame's buffers are fresh pages",
+    )
     args = ap.parse_args(argv)
     # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
     import jaxgfx
 
-    jaxgfx.keep_freed_memory()
+    if not args.fresh_memory:
+        jaxgfx.keep_freed_memory()
     if args.bits_res is None:
         args.bits_res = 0 if args.quick else 1024
     if not args.quick and "host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):

@@ -170,9 +170,10 @@ class RenderSettings:
             back to back (None: :func:`default_pool_size`).  A frame whose lists do
             not fit is walked in passes, each warping the planes it walked
             (``stats["passes"]``): the same frame.  The pool is a fresh buffer
-            every frame, cleared before use, and on the CPU the frame pays the
-            page faults of all of it: one pool for the most a frame can draw at
-            512x384 with 2x1 AA (47 MB) cost 15 ms a frame.
+            every frame, cleared before use: one pool for the most a frame can
+            draw (47 MB at 512x384 with 2x1 AA) cost every frame its clearing and,
+            on the CPU, the first touch of its pages (``rle_bench``'s ``one_pool``
+            columns).
         refine_steps: if > 0 (default 16), pixels whose ray entered no candidate
             element re-walk their own ray that many voxels from just before the
             neighbourhood's depth (not in the thesis).

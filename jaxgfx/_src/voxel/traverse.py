@@ -364,8 +364,8 @@ def traverse_lists(
         chunks: static number of consecutive plane groups, each with its own
             loop (so it stops when its own planes are done); a group holding
             only planes past ``sum(seg.count)`` is skipped.
-        pool_size: static number of drawn elements kept per frame (default
-            ``P K``).
+        pool_size: static number of drawn elements kept per frame, or per pass
+            with ``consume`` (default ``P K``).
         free_steps: static; before each step, up to this many cheap steps pass
             cells that cannot draw (empty, or the whole column on drawn rows),
             while any plane of the chunk has one (default 4; 0: none).  Any
