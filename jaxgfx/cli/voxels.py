@@ -318,7 +318,9 @@ def warn_lost_elements(stats: dict, settings, cam) -> None:
     if drawn > pool:
         # A quarter more than this frame drew, so a nearby view fits too; whole KiB.
         fixes.append(f"--pool-size {-(-drawn * 5 // 4 // 1024) * 1024}")
-    if drawn <= pool:  # the pool was not the cause
+    # A pass loses only a chunk's lists past the pool, so the pool explains at most
+    # drawn - pool lost elements; more means a plane's list was full.
+    if lost > max(drawn - pool, 0):
         # Each drawn element covers at least one new row of its plane: one per row fits.
         fixes.append(f"--buffer-size {max(cam.width, cam.height)}")
     print(

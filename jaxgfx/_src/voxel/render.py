@@ -314,7 +314,8 @@ def render_rle(
         :class:`RenderOutput` with colour (H, W, 3), depth (H, W) and counters
         (``refined``: pixels that asked for a re-walk; ``traversal_steps`` and
         ``loop_iterations``: the dependent loop steps of the traversal and of the
-        whole frame, traversal + warp + re-walk).
+        whole frame, traversal + warp + re-walk; ``passes``: the one-cell walk's
+        passes over its element pool, see ``RenderSettings.pool_size``).
     """
     s = RenderSettings() if settings is None else settings
     if not isinstance(s, RenderSettings):
