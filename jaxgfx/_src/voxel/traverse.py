@@ -62,6 +62,7 @@ from jaxgfx._src.voxel.planes import Segments, plane_extent
 from jaxgfx._src.voxel.walk import (
     _TINY,
     _cell_exit,
+    _ChunkLoop,
     _free_step,
     _live_rows,
     _next_cell,
@@ -445,13 +446,13 @@ def traverse_lists(
         )
         return functools.partial(chunk, order, nw, step, free, stop)
 
-    def chunk(order, nw, step, free, stop, i, bufs):
+    def chunk(order, nw, step, free, stop, i, w):
         # One loop per chunk, so it stops when its own planes are done.  Its
         # lists live in one chunk-sized buffer reused by every chunk (it stays
         # in cache), and only the elements drawn are copied into the frame's
         # pool: per-plane lists of K slots for the whole frame cost a fresh
         # P K-word buffer per frame, more than the traversal of a small scene.
-        lists, pool, used, start, drawn, cov, word_first, stats, n_it, full, pass_of, pass_id = bufs
+        lists, pool, used, start, drawn, cov, word_first, stats, n_it, full, pass_of, pass_id = w
         base = order[i] * size
         part = jax.lax.dynamic_slice(padded, (base,), (size,))
         consts, carry0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=nw))(
@@ -515,7 +516,7 @@ def traverse_lists(
         lost = jnp.maximum(nbuf - stored, 0)
         st = jnp.concatenate([state.stats, lost[:, None]], axis=1)
         put = lambda buf, v: jax.lax.dynamic_update_slice_in_dim(buf, v, base, 0)  # noqa: E731
-        return (
+        return _ChunkLoop(
             lists,
             pool,
             used + jnp.where(fits, jnp.sum(stored), 0),
@@ -530,7 +531,7 @@ def traverse_lists(
             # Dependent loop steps: the chunk's steps, its free steps and its copy steps.
             n_it + state.it[0] + n_free + (jnp.max(stored) + 7) // 8,
             full | ~fits,
-            put(pass_of, jnp.where(fits, pass_id, -1) + jnp.zeros((size,), jnp.int32)),
+            put(pass_of, jnp.full((size,), jnp.where(fits, pass_id, -1), jnp.int32)),
             pass_id,
         )
 
@@ -539,27 +540,27 @@ def traverse_lists(
         for nw, mine in groups
     ]
 
-    def run(outs, starts, stop: bool):
+    def run(w: _ChunkLoop, starts, stop: bool):
         # Each group's chunks from starts[g]; with stop, until a chunk does not fit.
         ends = []
         for g, (nw, order, n) in enumerate(plan):
             body = chunk_fn(order, nw, stop)
 
             def one_chunk(c, body=body):
-                o = body(c[0], c[1])
-                return jnp.where(o[9], c[0], c[0] + 1), o
+                new = body(c[0], c[1])
+                return jnp.where(new.full, c[0], c[0] + 1), new
 
-            going = lambda c, n=n: (c[0] < n) & ~c[1][9]  # noqa: E731
-            i, outs = jax.lax.while_loop(going, one_chunk, (starts[g], outs))
+            going = lambda c, n=n: (c[0] < n) & ~c[1].full  # noqa: E731
+            i, w = jax.lax.while_loop(going, one_chunk, (starts[g], w))
             ends.append(i)
-        return outs, ends
+        return w, ends
 
-    def result(outs):
-        pool, per_plane, n_it = outs[1], outs[3:8], outs[8]
-        out = (pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
-        return out + (n_it,) if with_steps else out
+    def result(w: _ChunkLoop):
+        per_plane = (w.start, w.drawn, w.cov, w.first, w.stats)
+        out = (w.pool,) + (per_plane if Pp == P else tuple(o[:P] for o in per_plane))
+        return out + (w.steps,) if with_steps else out
 
-    outs0 = (
+    w0 = _ChunkLoop(
         jnp.zeros((size, ELEMENT_WORDS, K), jnp.int32),
         jnp.zeros((ELEMENT_WORDS, pool_size), jnp.int32),
         jnp.int32(0),
@@ -575,7 +576,7 @@ def traverse_lists(
     )
     starts0 = [jnp.int32(0)] * len(plan)
     if consume is None:
-        return result(run(outs0, starts0, False)[0])
+        return result(run(w0, starts0, False)[0])
 
     # Passes: each fills the pool from its first element with the next chunks
     # until one does not fit, and hands the lists of the planes it walked to
@@ -584,13 +585,13 @@ def traverse_lists(
         return jnp.any(jnp.stack([c[0][g] < n for g, (_, _, n) in enumerate(plan)]))
 
     def one_pass(c):
-        starts, outs, acc = c
-        outs = outs[:2] + (jnp.int32(0),) + outs[3:9] + (jnp.bool_(False), outs[10], outs[11] + 1)
-        outs, ends = run(outs, starts, True)
-        mine = outs[10] == outs[11]
-        acc = consume(result(outs), mine if Pp == P else mine[:P], acc)
-        return ends, outs, acc
+        starts, w, acc = c
+        w = w._replace(used=jnp.int32(0), full=jnp.bool_(False), pass_id=w.pass_id + 1)
+        w, ends = run(w, starts, True)
+        mine = w.pass_of == w.pass_id
+        acc = consume(result(w), mine if Pp == P else mine[:P], acc)
+        return ends, w, acc
 
     # A frame without live chunks takes no pass: acc stays as given.
-    _, outs, acc = jax.lax.while_loop(unfinished, one_pass, (starts0, outs0, acc))
-    return result(outs), acc, outs[11]
+    _, w, acc = jax.lax.while_loop(unfinished, one_pass, (starts0, w0, acc))
+    return result(w), acc, w.pass_id

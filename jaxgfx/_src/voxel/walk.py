@@ -153,6 +153,23 @@ class _PlaneConsts(NamedTuple):
     q_num: jax.Array  # Eq. 4.5 numerator, slope term
 
 
+class _ChunkLoop(NamedTuple):
+    """State of :func:`~.traverse.traverse_lists`' chunk loops (per-plane arrays: padded planes)."""
+
+    lists: jax.Array  # (size, 5, K) int32, the chunk's list buffer (reused by every chunk)
+    pool: jax.Array  # (5, pool_size) int32, the lists of the pass's committed chunks
+    used: jax.Array  # () int32, pool entries taken
+    start: jax.Array  # (Pp,) int32, each plane's first pool entry
+    drawn: jax.Array  # (Pp,) int32, each plane's entries in the pool
+    cov: jax.Array  # (Pp, W) uint32, coverage maps
+    first: jax.Array  # (Pp, W) int32, first drawing entry per coverage word
+    stats: jax.Array  # (Pp, 4) int32
+    steps: jax.Array  # () int32, dependent loop steps
+    full: jax.Array  # () bool, a chunk did not fit the pass's pool
+    pass_of: jax.Array  # (Pp,) int32, the pass that committed each plane (-1: none yet)
+    pass_id: jax.Array  # () int32, the current pass (from 1)
+
+
 class _PlaneState(NamedTuple):
     """Loop state of one plane in :func:`traverse_planes` (vmap adds a leading plane axis)."""
 
