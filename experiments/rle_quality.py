@@ -16,7 +16,8 @@ with the per-pixel 3-D DDA (depth within one voxel, same colour, % of pixels
 either hits) for the bunny, the dragon (R = 256) and a 384 x 256 x 384 crop
 of ``untitled.vxl``, at the five near cameras of ``rle_bench`` (512 x 384) and
 three far ones (256 x 192, the distance set so that the object covers about
-600 / 1,500 / 4,000 pixels).  ``--quick``: one
+600 / 1,500 / 4,000 pixels), with the frame's drawn elements, those its lists
+lost (``overflow``) and its passes over the element pool.  ``--quick``: one
 near and one far camera of the small scene at the quick frame size.
 
 Usage::
@@ -107,6 +108,8 @@ def acceptance(quick, render, small=None):
                 hit_pixels=n,
                 planes=int(out.stats["planes"]),
                 overflow=int(out.stats["buffer_overflow"]),
+                drawn=int(out.stats["elements_rendered"]),
+                pool_passes=int(out.stats["passes"]),
                 depth_agree=round(100 * df, 2),
                 color_agree=round(100 * cf, 2),
                 passes="yes" if df >= 0.99 and cf >= 0.98 else "NO",
@@ -169,8 +172,8 @@ def main(argv=None) -> int:
     text += "|---|---|---|\n" + "".join(
         f"| {r['aa']} | {r['render_ms']} | {r['compile_s']} |\n" for r in rows
     )
-    heads = ["scene", "camera", "size", "hit_pixels", "planes", "overflow", "depth_agree",
-             "color_agree", "passes"]  # fmt: skip
+    heads = ["scene", "camera", "size", "hit_pixels", "planes", "overflow", "drawn",
+             "pool_passes", "depth_agree", "color_agree", "passes"]  # fmt: skip
     text += (
         "\n## Agreement with the per-pixel 3-D DDA at every distance"
         " (% of pixels hit by either)\n\n"
