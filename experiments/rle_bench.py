@@ -10,9 +10,10 @@ the same run with the same cameras, the baselines: the per-pixel 3-D DDA
 through the rasterizer, 4.6.3) and, for meshes, the mesh's own triangles
 through the rasterizer.  Ratios are baseline time / our time.  Compile time
 (first call) is reported apart from the steady-state time.  Beside the default:
-the wide traversals, and the one-cell walk with one element pool for the most a
-frame can draw (``one_pool``, a single pass; the default's pool is bounded and a
-frame that draws more takes more ``passes``), its frames taking turns with the
+the wide traversals, the scatter traversal (``scatter_*``, single-object
+maps), and the one-cell walk with one element pool for the most a frame can
+draw (``one_pool``, a single pass; the default's pool is bounded and a frame
+that draws more takes more ``passes``), its frames taking turns with the
 default's (``ab_ours_ms``).
 
 The peers a user would pick instead (``experiments._rle_peers``): Embree
@@ -75,6 +76,9 @@ LOD_DISTANCE = 96.0
 # steps, more of them).
 WIDE = RC.RenderSettings(traversal="wide")
 WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
+# Every element scattered into the planes that cross its cell (single-object
+# maps): the one-cell walk's ray buffer in a few wide steps.
+SCATTER = RC.RenderSettings(traversal="scatter")
 
 
 def one_pool(w: int, h: int) -> RC.RenderSettings:
@@ -342,6 +346,8 @@ def run(args):
             # CPU the one-cell walk) agree on hit / miss.  Quick: none (CI time;
             # the tests render both traversals).
             variants = () if quick else (("wide", WIDE), ("slots", WIDE_SLOTS))
+            if not quick and tuple(rle.tiles.shape) == (1, 1):  # scatter: one object
+                variants += (("scatter", SCATTER),)
             if not quick:
                 # One frame-sized pool against the default bounded one, frames
                 # taking turns (a few per cent is the question).
@@ -377,6 +383,8 @@ def run(args):
                     t_peer = steady(times)
                     row[f"{label}_ms"] = round(1e3 * t_peer, 1)
                     row[f"ours/{label}"] = round(ours / t_peer, 2)
+                    if "scatter_ms" in row:
+                        row[f"scatter/{label}"] = round(row["scatter_ms"] / 1e3 / t_peer, 2)
                     row.update(extra)
                 if mesh is not None:
                     mv = jnp.asarray(mesh_in_voxels(mesh, vox.shape))
@@ -624,9 +632,11 @@ def main(argv=None) -> int:
     h1 = ["scene", "note", "size", "voxels", "bits_per_voxel", "bytes_per_voxel", "el_total_M",
           "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
           "Melem_per_s", "iters", "wide_ms", "wide_iters",
-          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "thesis_ms",
+          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "scatter_ms",
+          "scatter_iters", "scatter_same_hits", "thesis_ms",
           "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
-          "mesh/ours", "embree_faces_ms", "ours/embree_faces", "embree_faces_agree",
+          "mesh/ours", "embree_faces_ms", "ours/embree_faces", "scatter/embree_faces",
+          "embree_faces_agree",
           "embree_mesh_ms", "ours/embree_mesh", "embree_mesh_agree", "embree_mesh_dz"]  # fmt: skip
     h2 = ["way", "frames", "size", "ms_per_frame", "speedup_vs_loop", "median_speedup",
           "iters_per_batch", "bit_identical", "same_color", "max_depth_diff",

@@ -123,7 +123,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=None)
-    ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "narrow"),
+    ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "narrow", "scatter"),
                     help="RenderSettings.traversal of the renders checked")  # fmt: skip
     args = ap.parse_args(argv)
     w, h = (96, 72) if args.quick else (256, 192)

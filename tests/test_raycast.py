@@ -687,6 +687,74 @@ def test_wide_traversal_matches_reference_and_batches_as_one_program(scene):
     assert max(steps) < 0.5 * sum(steps)
 
 
+# ---------------------------------------------------------------------------
+# The scatter traversal (every element into the planes that cross its cell)
+# ---------------------------------------------------------------------------
+
+SCATTER = RC.RenderSettings(traversal="scatter")
+NARROW = RC.RenderSettings(traversal="narrow")
+
+
+def test_scatter_traversal_draws_the_one_cell_walks_frames(scene):
+    # The first writer of a texel is fixed by the walk's order alone, so
+    # projecting every element into the planes that cross its cell and keeping
+    # each texel's smallest walk-order key gives the one-cell walk's ray buffer:
+    # the same frames, in a few wide steps.  A window of 96 pairs walks the
+    # pairs in many steps and must give the same frame.
+    _, rle, occ, col = scene
+    small = dataclasses.replace(SCATTER, window=96)
+    for name, cam in CAMERAS:
+        out = render(rle, cam, settings=SCATTER)
+        walk = render(rle, cam, settings=NARROW)
+        ref, _ = reference(occ, col, cam)
+        d_ok, c_ok, n = _agreement(out, ref)
+        assert n > 800, name
+        assert d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE, (name, d_ok, c_ok)
+        # The same frame up to float rounding: each traversal sets its planes up
+        # in its own program, and a row at a plane's slope limit (straight down
+        # from the eye) can fall either side of a pixel centre.
+        d1, d2 = np.asarray(out.depth), np.asarray(walk.depth)
+        same = (d1 == d2) | (np.isinf(d1) & np.isinf(d2))
+        assert np.mean(same) >= 0.99, (name, np.mean(same))
+        assert np.mean(np.all(np.asarray(out.color) == np.asarray(walk.color), -1)) >= 0.99
+        st = {k: int(v) for k, v in out.stats.items()}
+        assert 1 <= st["traversal_steps"] <= 4, (name, st)
+        assert st["elements_total"] >= int(walk.stats["elements_processed"]) > 0
+        many = render(rle, cam, settings=small)
+        np.testing.assert_array_equal(np.asarray(many.depth), d1)
+        np.testing.assert_array_equal(np.asarray(many.color), np.asarray(out.color))
+        assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
+
+
+def test_scatter_traversal_batches_and_lowers_for_accelerators(scene):
+    # One vmapped program renders the batch's frames together (their planes and
+    # pairs form wider arrays), agreeing with the frames rendered one by one;
+    # the program lowers for CUDA and TPU.
+    from jax import export
+
+    _, rle, _, _ = scene
+    cams = [c for _, c in WIDE_CAMERAS]
+    vector = dataclasses.replace(SCATTER, batching="vectorized")
+    fn = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=vector)))
+    vec = fn(stack_cameras(cams))
+    for k, cam in enumerate(cams):
+        single = render(rle, cam, settings=SCATTER)
+        d1, d2 = np.asarray(vec.depth[k]), np.asarray(single.depth)
+        both = np.isfinite(d1) & np.isfinite(d2)
+        assert np.mean(np.isfinite(d1) == np.isfinite(d2)) >= 0.995
+        rel = np.abs(d1[both] - d2[both]) / np.maximum(d2[both], 1.0)
+        assert np.mean(rel <= 1e-6) >= 0.995
+    exported = export.export(fn, platforms=("cuda", "tpu"))(stack_cameras(cams[:2]))
+    assert exported.platforms == ("cuda", "tpu")
+
+
+def test_scatter_traversal_rejects_instance_maps(scene):
+    vox = _scene()
+    inst = V.place_instances(V.encode_rle(vox, levels=1), [[0, 0], [1, 1]], (2, 2))
+    with pytest.raises(ValueError, match="instance map"):
+        RC.render_rle(inst, CAMERAS[2][1], settings=SCATTER)
+
+
 @functools.partial(jax.jit, static_argnames=("slots",))
 def _wide_lists(rle, cam, slots):
     n = RC.default_num_planes(W, H, 2.0, scene_shape=rle.shape, planes_per_voxel=3.0)

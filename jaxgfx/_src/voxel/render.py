@@ -29,6 +29,13 @@ from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
+from jaxgfx._src.voxel.scatter import (
+    check_scatter_scene,
+    default_texels,
+    default_window,
+    scatter_ray_buffer,
+    warp_texels,
+)
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import (
     empty_warp_tiles,
@@ -141,7 +148,7 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
     return 2.0 * jnp.maximum(fx, fy) / pixels
 
 
-_TRAVERSALS = ("auto", "wide", "narrow")
+_TRAVERSALS = ("auto", "wide", "narrow", "scatter")
 _BATCHINGS = BATCHING
 
 
@@ -194,13 +201,22 @@ class RenderSettings:
             steps a frame, each cheap: XLA:CPU's fastest); ``"wide"``: a block of
             cells per plane per step (tens of steps, each as wide as all planes:
             what an accelerator needs, as each step is a kernel launch there);
-            ``"auto"`` (default): the first where the program is lowered for the
-            CPU, the second elsewhere (``jax.lax.platform_dependent``).
+            ``"scatter"``: every element projected into the planes that cross its
+            cell, each texel keeping its first writer by a scatter-min of the
+            walk order (:mod:`.scatter`: a few tens of wide steps; single-object
+            maps only).
+            ``"auto"`` (default): ``"narrow"`` where the program is lowered for the
+            CPU, ``"wide"`` elsewhere (``jax.lax.platform_dependent``).
         block_cells: wide traversal: major-axis columns per block (default 16).
         block_elements: wide traversal: element slots per plane per step (None:
             ``max(2 max_elements, block_cells, 8)``; at least two columns).
         slots: wide traversal: planes stepped at once, a done plane's slot taking
             the next plane (None: all planes every step, fewest steps).
+        window: scatter traversal: (element, plane) pairs per loop step (None:
+            :func:`~jaxgfx._src.voxel.scatter.default_window`).
+        texels: scatter traversal: size of the ray buffer, the planes' rows back
+            to back (None: :func:`~jaxgfx._src.voxel.scatter.default_texels`);
+            texels past it are lost, counted in ``stats["buffer_overflow"]``.
         batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
             ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
             ``"auto"`` (default: frames on the CPU, vector elsewhere).
@@ -224,6 +240,8 @@ class RenderSettings:
     block_cells: int = static_field(16)
     block_elements: int | None = static_field(None)
     slots: int | None = static_field(None)
+    window: int | None = static_field(None)
+    texels: int | None = static_field(None)
     batching: str = static_field("auto")
 
     def __post_init__(self):
@@ -242,6 +260,8 @@ class RenderSettings:
             block_cells=check_int("block_cells", self.block_cells, low=1),
             block_elements=_optional_int("block_elements", self.block_elements, 1),
             slots=_optional_int("slots", self.slots, 1),
+            window=_optional_int("window", self.window, 1),
+            texels=_optional_int("texels", self.texels, 1),
         )
         if self.traversal not in _TRAVERSALS:
             raise ValueError(f"traversal must be one of {_TRAVERSALS}, got {self.traversal!r}")
@@ -424,6 +444,18 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         levels=rle.levels,
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
+    if s.traversal == "scatter":
+        window = default_window(cam.width, cam.height) if s.window is None else s.window
+        texels = s.texels or default_texels(cam.width, cam.height, num_planes, rows)
+        check_scatter_scene(rle, num_planes, texels)
+        buffer, elements, stats, steps = scatter_ray_buffer(
+            rle, cam, seg, planes, rows=rows, lod_distance=lod, window=window, texels=texels
+        )
+        image = warp_texels(rle, cam, seg, buffer, elements, neighbors=s.neighbors)
+        lists = (None,) * 5 + (stats[None, :], steps)
+        return _finish_frame(
+            rle, cam, seg, s, lists, (*image, jnp.int32(0)), jnp.int32(1), batched=True
+        )
     wide = s.traversal == "wide"
     # The accelerator's form (every plane in every step) warps every busy tile in
     # one step and re-walks every uncertain pixel in one batch: its dependent steps
