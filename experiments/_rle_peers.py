@@ -135,7 +135,8 @@ def embree_peers(vox, mesh, cams, ours_out, reps):
 
 
 def batched_cameras(rle, cams, rounds: int = 9) -> list[dict]:
-    """Per-frame time of a loop, ``vmap`` (one device) and the sharded batch; sameness.
+    """Per-frame time of a loop, ``vmap`` (one device), the wide and scatter traversals as
+    one vmapped program, and the sharded batch; sameness against the loop.
 
     Interleaved rounds, every other one in reverse order (every way sees the same
     machine state, and none always runs first); the fastest round gives the time,
@@ -151,11 +152,16 @@ def batched_cameras(rle, cams, rounds: int = 9) -> list[dict]:
     # The accelerator's rule run here: the wide traversal, the frames one vmapped program.
     vector = RC.RenderSettings(traversal="wide", batching="vectorized")
     vw = jax.jit(jax.vmap(lambda r, c: RC.render_rle(r, c, settings=vector), in_axes=(None, 0)))
+    # The scatter traversal, the frames one vmapped program (its few loop steps
+    # run once for the batch).
+    scatter = RC.RenderSettings(traversal="scatter", batching="vectorized")
+    vs = jax.jit(jax.vmap(lambda r, c: RC.render_rle(r, c, settings=scatter), in_axes=(None, 0)))
     stacked = stack_cameras(cams)
     runs = {
         "loop": lambda: [one(rle, c) for c in cams],
         "vmap (1 device)": lambda: vm(rle, stacked),
         "vmap wide, vector rule (1 device)": lambda: vw(rle, stacked),
+        "vmap scatter, vector rule (1 device)": lambda: vs(rle, stacked),
     }
     n_dev = len(jax.devices())
     if n_dev > 1:
@@ -163,7 +169,7 @@ def batched_cameras(rle, cams, rounds: int = 9) -> list[dict]:
         runs[f"sharded ({n_dev} devices)"] = lambda: sh(stacked)
     # The ways whose frames advance together in one batched loop: the forced vector
     # rule, and on accelerators the default rule (``batching="auto"``) as well.
-    together = {"vmap wide, vector rule (1 device)"}
+    together = {"vmap wide, vector rule (1 device)", "vmap scatter, vector rule (1 device)"}
     if jax.default_backend() != "cpu":
         together.add("vmap (1 device)")
     first = {k: jax.block_until_ready(f()) for k, f in runs.items()}

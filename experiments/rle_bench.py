@@ -14,17 +14,18 @@ the wide traversals, the scatter traversal (``scatter_*``, single-object
 maps), and the one-cell walk with one element pool for the most a frame can
 draw (``one_pool``, a single pass; the default's pool is bounded and a frame
 that draws more takes more ``passes``), its frames taking turns with the
-default's (``ab_ours_ms``).
+default's (``ab_ours_ms``), as do the scatter traversal's (``ab_scatter_ms``).
 
 The peers a user would pick instead (``experiments._rle_peers``): Embree
 (open3d, all cores) on the same voxels' exposed cube faces and on the
 original mesh, same cameras and run, with depth / hit agreement
 (``ours/embree_*`` = our time / Embree's).  A second table renders 8 bunny
-views batched (loop vs ``vmap`` vs sharded over one host device per core,
-bit-identity checked), and a third scales the instance count (Fig. 4.23 /
-4.30): time per frame beside the share of pixels the view covers and the
-elements drawn, against one instance and against 100 (which cover about as
-much of the screen as 1600), at LOD bands of 96 voxels and at
+views batched (loop vs ``vmap`` vs the wide and scatter traversals as one vmapped
+program vs sharded over one host device per core, bit-identity checked), and a
+third scales the instance count (Fig. 4.23 / 4.30): time per frame beside the
+share of pixels the view covers and the elements drawn, against one instance
+and against 100 (which cover about as much of the screen as 1600), at LOD bands
+of 96 voxels and at
 ``lod_distance_for``'s one-pixel bands (``px_lod`` columns), with the one-pixel
 frames and the most instances at 96 shaded side by side in ``instances.png``.
 Agreement with the per-pixel DDA at near and far cameras is
@@ -351,13 +352,21 @@ def run(args):
             if not quick:
                 # One frame-sized pool against the default bounded one, frames
                 # taking turns (a few per cent is the question).
+                # The scatter traversal takes its turns in the same rounds.
                 p1 = one_pool(*cams[0].shape[::-1])
                 f_p1 = lambda c, r=rle, st=p1: render(r, c, settings=st)  # noqa: E731
-                jax.block_until_ready(f_p1(cams[0]))
-                t_a, t_b = interleaved([f_ours, f_p1], cams, 3)
-                row["ab_ours_ms"] = round(1e3 * t_a, 1)
-                row["one_pool_ms"] = round(1e3 * t_b, 1)
-                row["one_pool/ours"] = round(t_b / t_a, 2)
+                fns = [f_ours, f_p1]
+                if tuple(rle.tiles.shape) == (1, 1):
+                    fns.append(lambda c, r=rle: render(r, c, settings=SCATTER))
+                for f in fns[1:]:
+                    jax.block_until_ready(f(cams[0]))
+                t_ab = interleaved(fns, cams, 3)
+                row["ab_ours_ms"] = round(1e3 * t_ab[0], 1)
+                row["one_pool_ms"] = round(1e3 * t_ab[1], 1)
+                row["one_pool/ours"] = round(t_ab[1] / t_ab[0], 2)
+                if len(t_ab) > 2:
+                    row["ab_scatter_ms"] = round(1e3 * t_ab[2], 1)
+                    row["ab_scatter/ours"] = round(t_ab[2] / t_ab[0], 2)
             for label, st in variants:
                 f_t = lambda c, r=rle, st=st: render(r, c, settings=st)  # noqa: E731
                 _, t_t, o_t = timed(f_t, cams, reps)
@@ -633,7 +642,8 @@ def main(argv=None) -> int:
           "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
           "Melem_per_s", "iters", "wide_ms", "wide_iters",
           "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "scatter_ms",
-          "scatter_iters", "scatter_same_hits", "thesis_ms",
+          "scatter_iters", "scatter_same_hits", "ab_ours_ms", "ab_scatter_ms",
+          "ab_scatter/ours", "thesis_ms",
           "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
           "mesh/ours", "embree_faces_ms", "ours/embree_faces", "scatter/embree_faces",
           "embree_faces_agree",

@@ -335,7 +335,10 @@ def render_rle(
         (``refined``: pixels that asked for a re-walk; ``traversal_steps`` and
         ``loop_iterations``: the dependent loop steps of the traversal and of the
         whole frame, traversal + warp + re-walk; ``passes``: the one-cell walk's
-        passes over its element pool, see ``RenderSettings.pool_size``).
+        passes over its element pool, see ``RenderSettings.pool_size``).  With
+        ``traversal="scatter"``, ``elements_total`` counts (element, plane) pairs,
+        ``elements_processed`` their rows, ``elements_rendered`` the texels drawn and
+        ``buffer_overflow`` the texels past ``RenderSettings.texels``.
     """
     s = RenderSettings() if settings is None else settings
     if not isinstance(s, RenderSettings):
@@ -453,8 +456,9 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         )
         image = warp_texels(rle, cam, seg, buffer, elements, neighbors=s.neighbors)
         lists = (None,) * 5 + (stats[None, :], steps)
+        # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
         return _finish_frame(
-            rle, cam, seg, s, lists, (*image, jnp.int32(0)), jnp.int32(1), batched=True
+            rle, cam, seg, s, lists, (*image, jnp.int32(0)), jnp.int32(1), batched=False
         )
     wide = s.traversal == "wide"
     # The accelerator's form (every plane in every step) warps every busy tile in
