@@ -147,20 +147,29 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
     L = rle.levels
     ex, ez = cam.position[0], cam.position[2]
     hx, hz = consts.hx, consts.hz
-    # The walk switches to level l in the level-(l-1) cell holding distance
-    # lod 2^(l-1), at that cell's exit (walk._next_cell).
+    # The walk switches to level l at the exit of the first level-(l-1) cell that
+    # leaves past lod 2^(l-1), into the parent of the cell across that exit
+    # (walk._next_cell): followed here cell by cell, in integers, as the walk
+    # does, since the level's first cell starts on a cell boundary.
     t_lev = [c0.t]
+    ix, iz = c0.ix, c0.iz  # the walk's first cell (clipped into the map)
+    exit_cell = jax.vmap(_cell_exit, in_axes=(0, None, 0, 0, None))
     for lev in range(1, L):
         band = lod * float(2 ** (lev - 1))
-        t = jnp.minimum(jnp.maximum(band, t_lev[-1]), consts.t_far)
+        _, t0_out, go_x0 = exit_cell(consts, cam, ix, iz, lev - 1)
+        # Not out of the level's first cell yet: the cell holding the band's end.
         c = float(2 ** (lev - 1))
-        # Clipped into the map as the walk's first cell is (t may be its entry).
         xl, _, zl = rle.level_shapes[lev - 1]
-        cx = jnp.clip(jnp.floor((ex + hx * t) / c), 0, xl - 1).astype(jnp.int32)
-        cz = jnp.clip(jnp.floor((ez + hz * t) / c), 0, zl - 1).astype(jnp.int32)
-        _, t_out, _ = jax.vmap(lambda q, a, b, lev=lev: _cell_exit(q, cam, a, b, lev - 1))(
-            consts, cx, cz
-        )
+        t_b = jnp.minimum(band, consts.t_far)
+        bx = jnp.clip(jnp.floor((ex + hx * t_b) / c), 0, xl - 1).astype(jnp.int32)
+        bz = jnp.clip(jnp.floor((ez + hz * t_b) / c), 0, zl - 1).astype(jnp.int32)
+        _, tb_out, go_xb = exit_cell(consts, cam, bx, bz, lev - 1)
+        first = t0_out >= band
+        t_out = jnp.where(first, t0_out, tb_out)
+        go_x = jnp.where(first, go_x0, go_xb)
+        cx, cz = jnp.where(first, ix, bx), jnp.where(first, iz, bz)
+        ix = jnp.where(go_x, cx + jnp.where(hx > 0, 1, -1), cx) >> 1
+        iz = jnp.where(go_x, cz, cz + jnp.where(hz > 0, 1, -1)) >> 1
         t_next = jnp.minimum(jnp.maximum(t_out, t_lev[-1]), consts.t_far)
         t_lev.append(jnp.where(band >= consts.t_far, consts.t_far, t_next))
     t_lev.append(consts.t_far)
