@@ -29,13 +29,7 @@ from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
-from jaxgfx._src.voxel.scatter import (
-    check_scatter_scene,
-    default_texels,
-    default_window,
-    scatter_ray_buffer,
-    warp_texels,
-)
+from jaxgfx._src.voxel.scatter import scatter_frame
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import (
     empty_warp_tiles,
@@ -448,18 +442,13 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
     if s.traversal == "scatter":
-        window = default_window(cam.width, cam.height) if s.window is None else s.window
-        texels = s.texels or default_texels(cam.width, cam.height, num_planes, rows)
-        check_scatter_scene(rle, num_planes, texels)
-        buffer, elements, stats, steps = scatter_ray_buffer(
-            rle, cam, seg, planes, rows=rows, lod_distance=lod, window=window, texels=texels
+        image, stats, steps = scatter_frame(
+            rle, cam, seg, planes, rows=rows, lod_distance=lod, settings=s
         )
-        image = warp_texels(rle, cam, seg, buffer, elements, neighbors=s.neighbors)
-        lists = (None,) * 5 + (stats[None, :], steps)
         # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
-        return _finish_frame(
-            rle, cam, seg, s, lists, (*image, jnp.int32(0)), jnp.int32(1), batched=False
-        )
+        lists = (None,) * 5 + (stats[None, :], steps)
+        warped = (*image, jnp.int32(0))
+        return _finish_frame(rle, cam, seg, s, lists, warped, jnp.int32(1), batched=False)
     wide = s.traversal == "wide"
     # The accelerator's form (every plane in every step) warps every busy tile in
     # one step and re-walks every uncertain pixel in one batch: its dependent steps

@@ -57,6 +57,7 @@ from jaxgfx._src.voxel.wide import _once_f
 
 __all__ = [
     "RayBuffer",
+    "scatter_frame",
     "scatter_ray_buffer",
     "warp_texels",
     "check_scatter_scene",
@@ -550,3 +551,25 @@ def warp_texels(
     t_enter, t_exit = _box_hit(rle, box, origins, dirs)
     color, depth = _shade(rle, hit, t_enter, t_exit, box, el.color[e], origins, dirs)
     return color, depth, jnp.isfinite(best_t)
+
+
+def scatter_frame(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod_distance, settings):
+    """One frame's ray buffer scattered and warped (``RenderSettings(traversal="scatter")``).
+
+    ``settings``: the :class:`~jaxgfx.raycast.RenderSettings` (its ``window``,
+    ``texels`` and ``neighbors``; None sizes take :func:`default_window` and
+    :func:`default_texels`).
+
+    Returns:
+        ``((color, depth, entered), stats (4,), steps ())``: :func:`warp_texels`'
+        image and :func:`scatter_ray_buffer`'s counts and loop steps.
+    """
+    P = planes.shape[0]
+    window = settings.window or default_window(cam.width, cam.height)
+    texels = settings.texels or default_texels(cam.width, cam.height, P, rows)
+    check_scatter_scene(rle, P, texels)
+    buffer, elements, stats, steps = scatter_ray_buffer(
+        rle, cam, seg, planes, rows=rows, lod_distance=lod_distance, window=window, texels=texels
+    )
+    image = warp_texels(rle, cam, seg, buffer, elements, neighbors=settings.neighbors)
+    return image, stats, steps
