@@ -703,9 +703,12 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene):
     # pairs in many steps and must give the same frame.
     _, rle, occ, col = scene
     small = dataclasses.replace(SCATTER, window=96)
+    # lod_distance passed every time: one program per traversal for both parts.
+    inf = np.float32(np.inf)
+    walks = {}
     for name, cam in CAMERAS:
-        out = render(rle, cam, settings=SCATTER)
-        walk = render(rle, cam, settings=NARROW)
+        out = render(rle, cam, settings=SCATTER, lod_distance=inf)
+        walk = walks[name] = render(rle, cam, settings=NARROW, lod_distance=inf)
         ref, _ = reference(occ, col, cam)
         d_ok, c_ok, n = _agreement(out, ref)
         assert n > 800, name
@@ -720,17 +723,17 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene):
         st = {k: int(v) for k, v in out.stats.items()}
         assert 1 <= st["traversal_steps"] <= 4, (name, st)
         assert st["elements_total"] >= int(walk.stats["elements_processed"]) > 0
-        many = render(rle, cam, settings=small)
+        many = render(rle, cam, settings=small, lod_distance=inf)
         np.testing.assert_array_equal(np.asarray(many.depth), d1)
         np.testing.assert_array_equal(np.asarray(many.color), np.asarray(out.color))
         assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
     # Mip level 1 from 8 voxels on: the level switch (in closed form per plane)
     # is the walk's, so the frames stay the walk's.
     for name, cam in (CAMERAS[2], CAMERAS[4]):
-        out = render(rle, cam, settings=SCATTER, lod_distance=8.0)
-        walk = render(rle, cam, settings=NARROW, lod_distance=8.0)
+        out = render(rle, cam, settings=SCATTER, lod_distance=np.float32(8.0))
+        walk = render(rle, cam, settings=NARROW, lod_distance=np.float32(8.0))
         d1, d2 = np.asarray(out.depth), np.asarray(walk.depth)
-        assert not np.array_equal(d2, np.asarray(render(rle, cam, settings=NARROW).depth))
+        assert not np.array_equal(d2, np.asarray(walks[name].depth))
         same = (d1 == d2) | (np.isinf(d1) & np.isinf(d2))
         assert np.mean(same) >= 0.99, (name, np.mean(same))
 
@@ -747,7 +750,7 @@ def test_scatter_traversal_batches_and_lowers_for_accelerators(scene):
     fn = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=vector)))
     vec = fn(stack_cameras(cams))
     for k, cam in enumerate(cams):
-        single = render(rle, cam, settings=SCATTER)
+        single = render(rle, cam, settings=SCATTER, lod_distance=np.float32(np.inf))
         d1, d2 = np.asarray(vec.depth[k]), np.asarray(single.depth)
         both = np.isfinite(d1) & np.isfinite(d2)
         assert np.mean(np.isfinite(d1) == np.isfinite(d2)) >= 0.995
