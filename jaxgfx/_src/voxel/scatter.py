@@ -52,7 +52,7 @@ from jaxgfx._src.voxel.grid import (
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.traverse import _plane_init
 from jaxgfx._src.voxel.walk import _TINY, _cell_exit, _once
-from jaxgfx._src.voxel.warp import _box_hit, _ray_buffer_texel, _shade
+from jaxgfx._src.voxel.warp import _nearest_candidate, _ray_buffer_texel
 from jaxgfx._src.voxel.wide import _once_f
 
 __all__ = [
@@ -534,23 +534,9 @@ def warp_texels(
         )
         return hit, e, box
 
-    def candidate_t(hit, box):
-        t_enter, t_exit = _box_hit(rle, box, origins, dirs)
-        entered = hit & (t_enter <= t_exit) & (t_exit >= 0.0)
-        return jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
-
-    offs_list = [0] + [d for d in range(-neighbors, neighbors + 1) if d != 0]
-    offs = jnp.asarray(offs_list, jnp.int32)[:, None, None]
-    hit_c, _, box_c = lookup(offs)
-    cand_t = candidate_t(hit_c, box_c)
-    best_t = jnp.min(cand_t, axis=0)
-    best_d = offs[jnp.argmin(cand_t, axis=0), 0, 0]
-    # As warp_ray_buffer: look the chosen candidate up again rather than carry it.
-    best_d = jax.lax.optimization_barrier(best_d)
-    hit, e, box = lookup(best_d)
-    t_enter, t_exit = _box_hit(rle, box, origins, dirs)
-    color, depth = _shade(rle, hit, t_enter, t_exit, box, el.color[e], origins, dirs)
-    return color, depth, jnp.isfinite(best_t)
+    return _nearest_candidate(
+        rle, lookup, lambda e: el.color[e], origins, dirs, neighbors=neighbors
+    )
 
 
 def scatter_frame(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod_distance, settings):

@@ -179,6 +179,28 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
         box = unpack_drawn_box(*(word(k, idx) for k in (WORD_HEIGHTS, WORD_X, WORD_Z_LEVEL)))
         return hit, idx, box
 
+    return _nearest_candidate(
+        rle, lookup, lambda idx: word(WORD_COLOR, idx), origins, dirs, neighbors=neighbors
+    )
+
+
+def _nearest_candidate(rle, lookup, color_of, origins, dirs, *, neighbors: int):
+    """The warp's per-pixel choice among its texel and the adjacent planes' (4.5.5, 4.5.6).
+
+    Args:
+        rle: the scene.
+        lookup: ``lookup(plane offset (..., H, W) int32) -> (hit, index, box)``:
+            each pixel's candidate in the plane that far from its nearest one
+            (``box``: ``(top, bottom, cell x, cell z, level)``).
+        color_of: ``color_of(index)``: the colour index of a candidate's top voxel.
+        origins, dirs: (H, W, 3) pixel rays.
+        neighbors: static planes on either side tested per pixel.
+
+    Returns:
+        ``(color (H, W, 3), depth (H, W), entered (H, W) bool)``: the nearest box
+        the pixel's own ray enters (the nearest texel's where it enters none).
+    """
+
     def candidate_t(hit, box):
         t_enter, t_exit = _box_hit(rle, box, origins, dirs)
         entered = hit & (t_enter <= t_exit) & (t_exit >= 0.0)
@@ -195,7 +217,7 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     best_d = jax.lax.optimization_barrier(best_d)
     hit, idx, box = lookup(best_d)
     t_enter, t_exit = _box_hit(rle, box, origins, dirs)
-    color, depth = _shade(rle, hit, t_enter, t_exit, box, word(WORD_COLOR, idx), origins, dirs)
+    color, depth = _shade(rle, hit, t_enter, t_exit, box, color_of(idx), origins, dirs)
     return color, depth, jnp.isfinite(best_t)
 
 
