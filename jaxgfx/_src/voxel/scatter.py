@@ -25,9 +25,10 @@ buffer comes out of a different loop order, which needs no dependent steps:
    the nearest face; the pairs whose key won a texel write their element there.
 
 Steps 3-4 run over the pairs in windows of a fixed size (``window`` pairs, at
-most ``max(4 window, rows)`` rows), so memory is bounded and the frame takes one loop
-step per window: a few tens, each as wide as the window.  Elements are the
-same as the per-plane walk's; the coverage culling's saving is lost (every
+most ``max(4 window, rows)`` rows) into a table of each plane's on-screen rows
+back to back, so memory is bounded and the frame takes one loop step per
+window (1 to 15 over ``rle_bench``'s views), each as wide as the window.
+Elements are the same as the per-plane walk's; the coverage culling's saving is lost (every
 element in a crossed cell is projected), while the thousands of dependent
 one-cell steps are gone.  Instance maps are not enumerated this way (a
 column stands in every tile that holds the object): :func:`scatter_ray_buffer`
