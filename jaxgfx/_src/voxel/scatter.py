@@ -78,9 +78,9 @@ _MAX_TEXELS = 1 << 24  # texel indices are exact in float32 below this
 def default_texels(width: int, height: int, num_planes: int, rows: int) -> int:
     """Texel table size: 10 per pixel, at most every plane's whole column and ``2^24``.
 
-    The planes' rows on screen add up to 2.4-8.3 per pixel over ``rle_bench``'s
-    views at the default plane spacing (most where the distance-driven planes
-    are many, as over ``untitled.vxl`` without AA).  Texel indices pass through
+    Ten per pixel holds the planes' on-screen rows at the default plane spacing on
+    every acceptance view of ``experiments.rle_quality --traversal scatter``
+    (``stats["buffer_overflow"]`` is 0 there).  Texel indices pass through
     float32 tables (see :func:`_plane_tables`), exact below ``2^24``.
     """
     return int(min(num_planes * rows, 10 * width * height, _MAX_TEXELS))
