@@ -346,8 +346,9 @@ def run(args):
             # the share of pixels where their frames and the default's (on the
             # CPU the one-cell walk) agree on hit / miss.  Quick: none (CI time;
             # the tests render both traversals).
+            one_object = tuple(rle.tiles.shape) == (1, 1)  # the scatter's scenes
             variants = () if quick else (("wide", WIDE), ("slots", WIDE_SLOTS))
-            if not quick and tuple(rle.tiles.shape) == (1, 1):  # scatter: one object
+            if not quick and one_object:
                 variants += (("scatter", SCATTER),)
             if not quick:
                 # One frame-sized pool against the default bounded one, frames
@@ -356,7 +357,7 @@ def run(args):
                 p1 = one_pool(*cams[0].shape[::-1])
                 f_p1 = lambda c, r=rle, st=p1: render(r, c, settings=st)  # noqa: E731
                 fns = [f_ours, f_p1]
-                if tuple(rle.tiles.shape) == (1, 1):
+                if one_object:
                     fns.append(lambda c, r=rle: render(r, c, settings=SCATTER))
                 for f in fns[1:]:
                     jax.block_until_ready(f(cams[0]))

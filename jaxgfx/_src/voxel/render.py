@@ -446,9 +446,10 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             rle, cam, seg, planes, rows=rows, lod_distance=lod, settings=s
         )
         # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
-        lists = (None,) * 5 + (stats[None, :], steps)
         warped = (*image, jnp.int32(0))
-        return _finish_frame(rle, cam, seg, s, lists, warped, jnp.int32(1), batched=False)
+        return _finish_frame(
+            rle, cam, seg, s, stats[None, :], steps, warped, jnp.int32(1), batched=False
+        )
     wide = s.traversal == "wide"
     # The accelerator's form (every plane in every step) warps every busy tile in
     # one step and re-walks every uncertain pixel in one batch: its dependent steps
@@ -478,7 +479,9 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
             slots=s.slots,
         )
         warped = warp(*lists[:5])
-        return _finish_frame(rle, cam, seg, s, lists, warped, jnp.int32(1), batched=batched)
+        return _finish_frame(
+            rle, cam, seg, s, lists[5], lists[6], warped, jnp.int32(1), batched=batched
+        )
 
     def consume(lists, mine, acc):
         # The planes of one pass: their candidates, merged into the frame's warp.
@@ -512,14 +515,13 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         acc=(empty_warp_tiles(cam), jnp.int32(0)),
     )
     warped = (*warp_tiles_image(cam, tiles), warp_steps)
-    return _finish_frame(rle, cam, seg, s, lists, warped, passes, batched=False)
+    return _finish_frame(rle, cam, seg, s, lists[5], lists[6], warped, passes, batched=False)
 
 
 def _finish_frame(
-    rle, cam, seg, s: RenderSettings, lists, warped, passes, *, batched: bool
+    rle, cam, seg, s: RenderSettings, stats, trav_steps, warped, passes, *, batched: bool
 ) -> RenderOutput:
-    """The re-walk of a warped frame; the frame's statistics."""
-    stats, trav_steps = lists[5], lists[6]
+    """The re-walk of a warped frame; the frame's statistics (``stats``: (planes, 4) counts)."""
     color, depth, entered, warp_steps = warped
     W, H = cam.width, cam.height
     refined = jnp.int32(0)

@@ -52,7 +52,7 @@ from jaxgfx._src.voxel.grid import (
 )
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.traverse import _plane_init
-from jaxgfx._src.voxel.walk import _TINY, _cell_exit, _once
+from jaxgfx._src.voxel.walk import _TINY, _cell_exit, _once, _PlaneConsts, _rows_of, _slopes
 from jaxgfx._src.voxel.warp import _nearest_candidate, _ray_buffer_texel
 from jaxgfx._src.voxel.wide import _once_f
 
@@ -354,23 +354,20 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok):
     t_in = jnp.maximum(jnp.maximum(t_in_x, t_in_z), t_lo)
     t_out = jnp.minimum(jnp.minimum(t_out_x, t_out_z), t_hi)
     seen = ok & (t_in <= t_out) & (t_out > t_lo) & (t_in < t_hi)
-    # Eq. 4.5 over the cell's corners, as walk._slopes / walk._rows_of.
+    # Eq. 4.5 over the cell's corners: the walk's own functions, on this pair's
+    # plane (its constants gathered; _slopes and _rows_of read only these).
     hmask = (1 << _H_BITS) - 1
     cy = _cell_height(rle, c)
-    y_lo = (heights & hmask).astype(jnp.float32) * cy - ey
-    y_hi = (((heights >> _H_BITS) & hmask) + 1).astype(jnp.float32) * cy - ey
+    y_lo = (heights & hmask).astype(jnp.float32) * cy
+    y_hi = (((heights >> _H_BITS) & hmask) + 1).astype(jnp.float32) * cy
     inv_in = 1.0 / jnp.maximum(t_in, _TINY)
     inv_out = 1.0 / jnp.maximum(t_out, jnp.maximum(t_in, _TINY))
-    a, b = y_lo * inv_in, y_hi * inv_in
-    a2, b2 = y_lo * inv_out, y_hi * inv_out
-    s0 = jnp.maximum(jnp.minimum(jnp.minimum(a, b), jnp.minimum(a2, b2)), pl.s_min[ps])
-    s1 = jnp.minimum(jnp.maximum(jnp.maximum(a, b), jnp.maximum(a2, b2)), pl.s_max[ps])
-    fy = camera_basis(cam)[2][1]
-    hf, p_num, q_num = pl.hf[ps], pl.p_num[ps], pl.q_num[ps]
-    u0 = (p_num + q_num * s0) / jnp.maximum(hf + s0 * fy, 1e-9)
-    u1 = (p_num + q_num * s1) / jnp.maximum(hf + s1 * fy, 1e-9)
-    r0 = jnp.ceil(jnp.minimum(u0, u1) - 0.5).astype(jnp.int32)
-    r1 = jnp.floor(jnp.maximum(u0, u1) - 0.5).astype(jnp.int32) + 1
+    q = _PlaneConsts(
+        hx, hz, inv_x, inv_z, t_hi, pl.s_min[ps], pl.s_max[ps], pl.hf[ps], pl.p_num[ps],
+        pl.q_num[ps],
+    )  # fmt: skip
+    s0, s1 = _slopes(q, y_lo, y_hi, ey, inv_in, inv_out)
+    r0, r1 = _rows_of(q, s0, s1, camera_basis(cam)[2][1])
     r0 = jnp.maximum(r0, pl.lo[ps].astype(jnp.int32))
     r1 = jnp.minimum(r1, pl.hi[ps].astype(jnp.int32))
     seen = seen & (s0 <= s1) & (r0 < r1)
