@@ -699,10 +699,11 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene):
     # The first writer of a texel is fixed by the walk's order alone, so
     # projecting every element into the planes that cross its cell and keeping
     # each texel's smallest walk-order key gives the one-cell walk's ray buffer:
-    # the same frames, in a few wide steps.  A window of 96 pairs walks the
-    # pairs in many steps and must give the same frame.
+    # the same frames, in a few wide steps.  A window of 96 pairs and a table
+    # of 8 ray-buffer columns walk the pairs in many steps and many passes (runs
+    # of planes in turn) and must give the same frame.
     _, rle, occ, col = scene
-    small = dataclasses.replace(SCATTER, window=96)
+    small = dataclasses.replace(SCATTER, window=96, texels=8 * W)
     # lod_distance passed every time: one program per traversal for both parts.
     inf = np.float32(np.inf)
     walks = {}
@@ -727,6 +728,7 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene):
         np.testing.assert_array_equal(np.asarray(many.depth), d1)
         np.testing.assert_array_equal(np.asarray(many.color), np.asarray(out.color))
         assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
+        assert int(many.stats["passes"]) > max(4, st["passes"]), name
     # Mip level 1 from 8 voxels on: the level switch (in closed form per plane)
     # is the walk's, so the frames stay the walk's.
     for name, cam in (CAMERAS[2], CAMERAS[4]):
@@ -765,6 +767,8 @@ def test_scatter_traversal_rejects_instance_maps(scene):
     inst = V.place_instances(V.encode_rle(vox, levels=1), [[0, 0], [1, 1]], (2, 2))
     with pytest.raises(ValueError, match="instance map"):
         RC.render_rle(inst, CAMERAS[2][1], settings=SCATTER)
+    with pytest.raises(ValueError, match="texels must be at least two ray-buffer columns"):
+        RC.render_rle(scene[1], CAMERAS[2][1], settings=dataclasses.replace(SCATTER, texels=W))
 
 
 @functools.partial(jax.jit, static_argnames=("slots",))

@@ -210,7 +210,7 @@ class RenderSettings:
             :func:`~jaxgfx._src.voxel.scatter.default_window`).
         texels: scatter traversal: size of the ray buffer, the planes' rows back
             to back (None: :func:`~jaxgfx._src.voxel.scatter.default_texels`);
-            texels past it are lost, counted in ``stats["buffer_overflow"]``.
+            a frame with more is drawn in passes (``stats["passes"]``).
         batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
             ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
             ``"auto"`` (default: frames on the CPU, vector elsewhere).
@@ -331,8 +331,9 @@ def render_rle(
         whole frame, traversal + warp + re-walk; ``passes``: the one-cell walk's
         passes over its element pool, see ``RenderSettings.pool_size``).  With
         ``traversal="scatter"``, ``elements_total`` counts (element, plane) pairs,
-        ``elements_processed`` their rows, ``elements_rendered`` the texels drawn and
-        ``buffer_overflow`` the texels past ``RenderSettings.texels``.
+        ``elements_processed`` their rows, ``elements_rendered`` the texels drawn,
+        ``passes`` the runs of planes drawn in turn (``RenderSettings.texels``)
+        and ``buffer_overflow`` is 0.
     """
     s = RenderSettings() if settings is None else settings
     if not isinstance(s, RenderSettings):
@@ -442,14 +443,12 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     )
     planes = jnp.arange(num_planes, dtype=jnp.int32)
     if s.traversal == "scatter":
-        image, stats, steps = scatter_frame(
+        image, stats, steps, passes = scatter_frame(
             rle, cam, seg, planes, rows=rows, lod_distance=lod, settings=s
         )
         # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
         warped = (*image, jnp.int32(0))
-        return _finish_frame(
-            rle, cam, seg, s, stats[None, :], steps, warped, jnp.int32(1), batched=False
-        )
+        return _finish_frame(rle, cam, seg, s, stats[None, :], steps, warped, passes, batched=False)
     wide = s.traversal == "wide"
     # The accelerator's form (every plane in every step) warps every busy tile in
     # one step and re-walks every uncertain pixel in one batch: its dependent steps

@@ -1,0 +1,195 @@
+"""The scatter's planes (steps 1-2 of :mod:`.scatter`): sorted by direction; the cells they cross.
+
+Every ray-buffer plane is a vertical half-plane through the eye; in the map it is
+a half-line from the eye in its x-z direction.  Sorted by that direction
+(:func:`_plane_tables`, the one-cell walk's plane constants, 4.5.3), the planes
+that cross a map cell are one run of them, or two across the back direction
+(:func:`_column_planes`): exactly the cells each plane's 2-D DDA visits (4.5.4).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgfx._src.camera import Camera, camera_basis
+from jaxgfx._src.voxel.planes import Segments
+from jaxgfx._src.voxel.traverse import _plane_init
+from jaxgfx._src.voxel.walk import _cell_exit, _once
+from jaxgfx._src.voxel.wide import _once_f
+
+__all__: list[str] = []
+
+
+class _Planes(NamedTuple):
+    """Per-plane data in direction order (:func:`_plane_tables`); (P,) arrays unless noted."""
+
+    angle: jax.Array  # direction about the reference, ascending; inf for planes without rows
+    n_live: jax.Array  # () planes with rows
+    ref: jax.Array  # (2,) reference x-z direction of the angles
+    hx: jax.Array
+    hz: jax.Array
+    s_min: jax.Array
+    s_max: jax.Array
+    hf: jax.Array
+    p_num: jax.Array
+    q_num: jax.Array
+    lo: jax.Array  # float32 first row of the plane
+    hi: jax.Array  # float32 one past its last row
+    base: jax.Array  # int32 texel index of the plane's row 0 (its rows are back to back)
+    t_level: jax.Array  # (levels + 1, P) where the walk enters each mip level; last: t_far
+    texels: jax.Array  # () int32, the frame's texels (sum of the planes' rows)
+    first: jax.Array  # (P,) int32 first texel of each plane, ascending
+    plane_base: jax.Array  # (P,) int32 ``base`` in plane order
+    plane_rows: jax.Array  # (P,) int32 ``lo | hi << 16`` in plane order (``hi = lo``: no rows)
+
+
+def _running_max(x):
+    return jax.lax.associative_scan(jnp.maximum, x)
+
+
+def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) -> _Planes:
+    """Each plane's constants (the one-cell walk's), sorted by x-z direction (step 1)."""
+    consts, c0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=1))(planes)
+    L = rle.levels
+    ex, ez = cam.position[0], cam.position[2]
+    hx, hz = consts.hx, consts.hz
+    # The walk switches to level l at the exit of the first level-(l-1) cell that
+    # leaves past lod 2^(l-1), into the parent of the cell across that exit
+    # (walk._next_cell): followed here cell by cell, in integers, as the walk
+    # does, since the level's first cell starts on a cell boundary.
+    t_lev = [c0.t]
+    ix, iz = c0.ix, c0.iz  # the walk's first cell (clipped into the map)
+    exit_cell = jax.vmap(_cell_exit, in_axes=(0, None, 0, 0, None))
+    for lev in range(1, L):
+        band = lod * float(2 ** (lev - 1))
+        _, t0_out, go_x0 = exit_cell(consts, cam, ix, iz, lev - 1)
+        # Not out of the level's first cell yet: the cell holding the band's end.
+        c = float(2 ** (lev - 1))
+        xl, _, zl = rle.level_shapes[lev - 1]
+        t_b = jnp.minimum(band, consts.t_far)
+        bx = jnp.clip(jnp.floor((ex + hx * t_b) / c), 0, xl - 1).astype(jnp.int32)
+        bz = jnp.clip(jnp.floor((ez + hz * t_b) / c), 0, zl - 1).astype(jnp.int32)
+        _, tb_out, go_xb = exit_cell(consts, cam, bx, bz, lev - 1)
+        first = t0_out >= band
+        t_out = jnp.where(first, t0_out, tb_out)
+        go_x = jnp.where(first, go_x0, go_xb)
+        cx, cz = jnp.where(first, ix, bx), jnp.where(first, iz, bz)
+        ix = jnp.where(go_x, cx + jnp.where(hx > 0, 1, -1), cx) >> 1
+        iz = jnp.where(go_x, cz, cz + jnp.where(hz > 0, 1, -1)) >> 1
+        t_next = jnp.minimum(jnp.maximum(t_out, t_lev[-1]), consts.t_far)
+        t_lev.append(jnp.where(band >= consts.t_far, consts.t_far, t_next))
+    t_lev.append(consts.t_far)
+    live = ~c0.done
+    _, _, forward = camera_basis(cam)
+    fn = jnp.hypot(forward[0], forward[2])
+    flat = fn < 1e-6
+    ref = jnp.stack(
+        [
+            jnp.where(flat, 0.0, forward[0] / jnp.where(flat, 1.0, fn)),
+            jnp.where(flat, 1.0, forward[2] / jnp.where(flat, 1.0, fn)),
+        ]
+    )
+    angle = jnp.where(
+        live, jnp.arctan2(ref[0] * hz - ref[1] * hx, ref[0] * hx + ref[1] * hz), jnp.inf
+    )
+    order = jnp.argsort(angle)
+    # The texels: each plane's rows [lo, hi) back to back, in direction order
+    # (a pass over a run of sorted planes draws a run of texels).
+    n_rows = jnp.where(live, c0.hi - c0.lo, 0)[order]
+    first = jnp.cumsum(n_rows) - n_rows
+    base = first - jnp.where(live, c0.lo, 0)[order]
+    position = jnp.zeros_like(order).at[order].set(jnp.arange(order.shape[0], dtype=order.dtype))
+    # Pinned (see walk._once): a per-pair gather would recompute its table's
+    # whole set-up for every pair otherwise.
+    fl = lambda a: _once_f(a.astype(jnp.float32)[order])  # noqa: E731
+    return _Planes(
+        angle=angle[order],
+        n_live=jnp.sum(live.astype(jnp.int32)),
+        ref=ref,
+        hx=fl(hx),
+        hz=fl(hz),
+        s_min=fl(consts.s_min),
+        s_max=fl(consts.s_max),
+        hf=fl(consts.hf),
+        p_num=fl(consts.p_num),
+        q_num=fl(consts.q_num),
+        lo=fl(jnp.where(live, c0.lo, 0)),
+        hi=fl(jnp.where(live, c0.hi, 0)),
+        base=_once(base),
+        t_level=_once_f(jnp.stack(t_lev)[:, order]),
+        texels=jnp.sum(n_rows),
+        first=first,
+        plane_base=_once(base[position]),
+        plane_rows=_once(c0.lo | ((c0.lo + n_rows[position]) << 16)),
+    )
+
+
+def _column_cells(rle):
+    """Per pointer-map entry (C,): its map cell ``(ix, iz, level)``; static NumPy arrays."""
+    C = rle.count.shape[0]
+    offs = np.asarray(rle.level_offsets, np.int64)
+    lev = (np.searchsorted(offs, np.arange(C), side="right") - 1).astype(np.int64)
+    zl = np.asarray([s[2] for s in rle.level_shapes], np.int64)[lev]
+    q = np.arange(C) - offs[lev]
+    return (q // zl).astype(np.int32), (q % zl).astype(np.int32), lev.astype(np.int32)
+
+
+def _column_planes(rle, cam: Camera, pl: _Planes):
+    """Per pointer-map entry: the sorted planes that cross its cell (step 2).
+
+    Returns ``(lo1, n1, n2)`` (C,) int32: planes ``lo1 .. lo1 + n1 - 1`` and, where the
+    cell's directions wrap past the back of the eye, ``0 .. n2 - 1`` too.
+    """
+    ix_n, iz_n, lev_n = _column_cells(rle)
+    ix, iz, lev = (jnp.asarray(a) for a in (ix_n, iz_n, lev_n))
+    c = jnp.left_shift(1, lev).astype(jnp.float32)
+    ex, ez = cam.position[0], cam.position[2]
+    x0 = ix.astype(jnp.float32) * c - ex
+    z0 = iz.astype(jnp.float32) * c - ez
+    x1, z1 = x0 + c, z0 + c
+    rx, rz = pl.ref[0], pl.ref[1]
+    # The direction of every cell corner once (neighbouring cells share them),
+    # each level's corner grid flat, then each cell's four corners gathered.
+    grids, offs = [], [0]
+    for lev_l, (xl, _, zl) in enumerate(rle.level_shapes):
+        cl = np.float32(2**lev_l)
+        dx = jnp.arange(xl + 1, dtype=jnp.float32)[:, None] * cl - ex
+        dz = jnp.arange(zl + 1, dtype=jnp.float32)[None, :] * cl - ez
+        grids.append(jnp.arctan2(rx * dz - rz * dx, rx * dx + rz * dz).ravel())
+        offs.append(offs[-1] + (xl + 1) * (zl + 1))
+    angles = jnp.concatenate(grids)
+    zl_n = np.asarray([s[2] for s in rle.level_shapes], np.int64)[lev_n] + 1
+    i00 = np.asarray(offs, np.int64)[lev_n] + ix_n.astype(np.int64) * zl_n + iz_n
+    corner = jnp.stack([angles[i00 + d] for d in (0, 1, zl_n, zl_n + 1)])
+    a0, a1 = jnp.min(corner, axis=0), jnp.max(corner, axis=0)
+    # A cell seen under more than a half turn lies across the back direction:
+    # its directions are [a1, pi] and [-pi, a0].
+    wrap = (a1 - a0) > np.pi
+    lo1 = jnp.searchsorted(pl.angle, jnp.where(wrap, a1, a0), side="left").astype(jnp.int32)
+    hi1 = jnp.searchsorted(pl.angle, jnp.where(wrap, np.pi, a1), side="right").astype(jnp.int32)
+    hi2 = jnp.where(wrap, jnp.searchsorted(pl.angle, a0, side="right").astype(jnp.int32), 0)
+    # The eye's own cell: every plane starts in it.
+    eye = (x0 <= 0) & (x1 >= 0) & (z0 <= 0) & (z1 >= 0)
+    if rle.levels > 1:
+        # A level's cells outside every plane's stretch at that level draw nothing.
+        live = jnp.isfinite(pl.angle)
+        t_lo = jnp.min(jnp.where(live[None, :], pl.t_level[:-1], jnp.inf), axis=1)[lev]
+        t_hi = jnp.max(jnp.where(live[None, :], pl.t_level[1:], -jnp.inf), axis=1)[lev]
+        near = jnp.hypot(
+            jnp.maximum(jnp.maximum(x0, -x1), 0.0), jnp.maximum(jnp.maximum(z0, -z1), 0.0)
+        )
+        far = jnp.hypot(
+            jnp.maximum(jnp.abs(x0), jnp.abs(x1)), jnp.maximum(jnp.abs(z0), jnp.abs(z1))
+        )
+        eye = eye & (t_lo <= 0.0)
+        reach = (far >= t_lo) & (near <= t_hi)
+    else:
+        reach = jnp.ones_like(eye)
+    lo1 = jnp.where(eye, 0, lo1)
+    hi1 = jnp.where(eye, pl.n_live, jnp.minimum(hi1, pl.n_live))
+    n2 = jnp.where(eye, 0, jnp.minimum(hi2, pl.n_live))
+    return lo1, jnp.where(reach, jnp.maximum(hi1 - lo1, 0), 0), jnp.where(reach, n2, 0)
