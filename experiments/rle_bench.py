@@ -9,12 +9,13 @@ the same run with the same cameras, the baselines: the per-pixel 3-D DDA
 (``reference_render``), splatting (one camera-facing quad per surface voxel
 through the rasterizer, 4.6.3) and, for meshes, the mesh's own triangles
 through the rasterizer.  Ratios are baseline time / our time.  Compile time
-(first call) is reported apart from the steady-state time.  Beside the default:
-the wide traversals, the scatter traversal (``scatter_*``, single-object
-maps), and the one-cell walk with one element pool for the most a frame can
-draw (``one_pool``, a single pass; the default's pool is bounded and a frame
-that draws more takes more ``passes``), its frames taking turns with the
-default's (``ab_ours_ms``), as do the scatter traversal's (``ab_scatter_ms``).
+(first call) is reported apart from the steady-state time.  The default
+(``ours``) draws single-object maps with the scatter traversal and instance maps
+with the one-cell walk.  Beside it: the wide traversals, the one-cell walk on
+single-object maps (``walk_*``), and the one-cell walk with one element pool for
+the most a frame can draw (``one_pool``, a single pass; the walk's pool is
+bounded and a frame that draws more takes more ``passes``), their frames taking
+turns with the default's (``ab_ours_ms``, ``ab_walk_ms``, ``one_pool_ms``).
 
 The peers a user would pick instead (``experiments._rle_peers``): Embree
 (open3d, all cores) on the same voxels' exposed cube faces and on the
@@ -77,18 +78,18 @@ LOD_DISTANCE = 96.0
 # steps, more of them).
 WIDE = RC.RenderSettings(traversal="wide")
 WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
-# Every element scattered into the planes that cross its cell (single-object
-# maps): the one-cell walk's ray buffer in a few wide steps.
-SCATTER = RC.RenderSettings(traversal="scatter")
+# The one-cell walk (the default on instance maps; the scatter draws single-object
+# maps by default).
+WALK = RC.RenderSettings(traversal="narrow")
 
 
 def one_pool(w: int, h: int) -> RC.RenderSettings:
-    """The default settings with one element pool for the most a frame draws (one pass).
+    """The one-cell walk with one element pool for the most a frame draws (one pass).
 
-    What the one-cell walk used before its bounded pool (``pool_size``): the
-    ``one_pool`` columns time it beside the default.
+    What the walk used before its bounded pool (``pool_size``): the ``one_pool``
+    columns time it beside the walk's default pool.
     """
-    return RC.RenderSettings(pool_size=3 * 2 * w * h)
+    return RC.RenderSettings(traversal="narrow", pool_size=3 * 2 * w * h)
 
 
 def markdown(rows, headers) -> str:
@@ -349,25 +350,25 @@ def run(args):
             one_object = tuple(rle.tiles.shape) == (1, 1)  # the scatter's scenes
             variants = () if quick else (("wide", WIDE), ("slots", WIDE_SLOTS))
             if not quick and one_object:
-                variants += (("scatter", SCATTER),)
+                variants += (("walk", WALK),)
             if not quick:
                 # One frame-sized pool against the default bounded one, frames
                 # taking turns (a few per cent is the question).
-                # The scatter traversal takes its turns in the same rounds.
+                # The walk takes its turns in the same rounds where it is not the default.
                 p1 = one_pool(*cams[0].shape[::-1])
                 f_p1 = lambda c, r=rle, st=p1: render(r, c, settings=st)  # noqa: E731
                 fns = [f_ours, f_p1]
                 if one_object:
-                    fns.append(lambda c, r=rle: render(r, c, settings=SCATTER))
+                    fns.append(lambda c, r=rle: render(r, c, settings=WALK))
                 for f in fns[1:]:
                     jax.block_until_ready(f(cams[0]))
                 t_ab = interleaved(fns, cams, 3)
+                t_walk = t_ab[2] if one_object else t_ab[0]
                 row["ab_ours_ms"] = round(1e3 * t_ab[0], 1)
+                row["ab_walk_ms"] = round(1e3 * t_walk, 1)
+                row["ab_ours/walk"] = round(t_ab[0] / t_walk, 2)
                 row["one_pool_ms"] = round(1e3 * t_ab[1], 1)
-                row["one_pool/ours"] = round(t_ab[1] / t_ab[0], 2)
-                if len(t_ab) > 2:
-                    row["ab_scatter_ms"] = round(1e3 * t_ab[2], 1)
-                    row["ab_scatter/ours"] = round(t_ab[2] / t_ab[0], 2)
+                row["one_pool/walk"] = round(t_ab[1] / t_walk, 2)
             for label, st in variants:
                 f_t = lambda c, r=rle, st=st: render(r, c, settings=st)  # noqa: E731
                 _, t_t, o_t = timed(f_t, cams, reps)
@@ -393,8 +394,8 @@ def run(args):
                     t_peer = steady(times)
                     row[f"{label}_ms"] = round(1e3 * t_peer, 1)
                     row[f"ours/{label}"] = round(ours / t_peer, 2)
-                    if "scatter_ms" in row:
-                        row[f"scatter/{label}"] = round(row["scatter_ms"] / 1e3 / t_peer, 2)
+                    if "walk_ms" in row:
+                        row[f"walk/{label}"] = round(row["walk_ms"] / 1e3 / t_peer, 2)
                     row.update(extra)
                 if mesh is not None:
                     mv = jnp.asarray(mesh_in_voxels(mesh, vox.shape))
@@ -642,11 +643,11 @@ def main(argv=None) -> int:
     h1 = ["scene", "note", "size", "voxels", "bits_per_voxel", "bytes_per_voxel", "el_total_M",
           "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
           "Melem_per_s", "iters", "wide_ms", "wide_iters",
-          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "scatter_ms",
-          "scatter_iters", "scatter_same_hits", "ab_ours_ms", "ab_scatter_ms",
-          "ab_scatter/ours", "thesis_ms",
+          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "walk_ms",
+          "walk_iters", "walk_same_hits", "ab_ours_ms", "ab_walk_ms", "ab_ours/walk",
+          "one_pool_ms", "one_pool/walk", "thesis_ms",
           "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
-          "mesh/ours", "embree_faces_ms", "ours/embree_faces", "scatter/embree_faces",
+          "mesh/ours", "embree_faces_ms", "ours/embree_faces", "walk/embree_faces",
           "embree_faces_agree",
           "embree_mesh_ms", "ours/embree_mesh", "embree_mesh_agree", "embree_mesh_dz"]  # fmt: skip
     h2 = ["way", "frames", "size", "ms_per_frame", "speedup_vs_loop", "median_speedup",

@@ -89,12 +89,12 @@ from jaxgfx._src.voxel.planes import vanishing_point as vanishing_point
 from jaxgfx._src.voxel.reference import dda_ray_3d as dda_ray_3d
 from jaxgfx._src.voxel.reference import reference_render as reference_render
 from jaxgfx._src.voxel.render import RenderOutput as RenderOutput
-from jaxgfx._src.voxel.render import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outside
 from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
 from jaxgfx._src.voxel.render import lod_distance_for as lod_distance_for
 from jaxgfx._src.voxel.render import render_rle as render_rle
+from jaxgfx._src.voxel.settings import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.tree import procedural_tree as procedural_tree
 from jaxgfx._src.voxel.volume import isotropic_shape as isotropic_shape
 from jaxgfx._src.voxel.volume import otsu_threshold as otsu_threshold

@@ -21,7 +21,8 @@ from jaxgfx._src.compose import Frame, background, composite, fog, lambert
 from jaxgfx._src.post import shade_voxels
 from jaxgfx._src.raster import rasterize, validate_mesh, vertex_normals
 from jaxgfx._src.voxel.encode import RLEVolume
-from jaxgfx._src.voxel.render import RenderSettings, render_rle
+from jaxgfx._src.voxel.render import render_rle
+from jaxgfx._src.voxel.settings import RenderSettings
 
 __all__ = [
     "MeshPass",

@@ -438,6 +438,7 @@ def run_render_voxels(args) -> int:
             planes_per_voxel=0.0 if args.thesis else RC.RenderSettings().planes_per_voxel,
             pool_size=args.pool_size,
             buffer_size=args.buffer_size,
+            traversal=args.traversal,
         )
         out = fn(
             RC.as_jax(rle),
@@ -558,14 +559,19 @@ def register(subparsers) -> None:
     r.add_argument("--oversample", type=bounded_float(0.0, math.inf, open_interval=True),
                    default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
+    r.add_argument("--traversal", choices=("auto", "scatter", "narrow", "wide"),
+                   default="auto",
+                   help="how the ray buffer is drawn (RenderSettings.traversal; auto: "
+                   "scatter for one object, narrow for instance maps on the CPU)")  # fmt: skip
     r.add_argument("--pool-size", type=positive_int, default=None,
-                   help="drawn elements kept per pass (default min(3 x oversample x W x H "
-                   "at the --aa grid, 2^19)); a frame that draws more takes more passes, and "
-                   "one whose chunk of planes alone needs more loses its farthest elements "
-                   "and says so on stderr")  # fmt: skip
+                   help="narrow traversal: drawn elements kept per pass (default min(3 x "
+                   "oversample x W x H at the --aa grid, 2^19)); a frame that draws more takes "
+                   "more passes, and one whose chunk of planes alone needs more loses its "
+                   "farthest elements and says so on stderr")  # fmt: skip
     r.add_argument("--buffer-size", type=positive_int, default=None,
-                   help="drawn elements kept per plane (default max(64, max(W, H) / 2) at "
-                   "the --aa grid; max(W, H) always suffices); as --pool-size")  # fmt: skip
+                   help="narrow / wide traversals: drawn elements kept per plane (default "
+                   "max(64, max(W, H) / 2) at the --aa grid; max(W, H) always suffices); as "
+                   "--pool-size")  # fmt: skip
     r.add_argument("--thesis", action="store_true",
                    help="the thesis method alone: 1 plane per border pixel at any "
                    "distance, nearest texel, no re-walk")  # fmt: skip

@@ -86,6 +86,9 @@ class RLEVolume:
         column_mips: static; False: level ``l``'s cells are cubes of ``2^l`` voxels (the
             thesis's mips); True: columns ``2^l`` voxels wide and one voxel high, so every
             level keeps the exact heights (:func:`encode_rle`'s ``mips="column"``).
+        shared_tails: static; True where columns may share their stored tails
+            (:func:`share_columns`), so ``elements`` holds fewer elements than the
+            columns reach.
     """
 
     first: Array
@@ -103,6 +106,7 @@ class RLEVolume:
     max_elements: int = static_field()
     voxel_counts: tuple = static_field()
     column_mips: bool = static_field(default=False)
+    shared_tails: bool = static_field(default=False)
 
     @property
     def levels(self) -> int:
@@ -523,6 +527,7 @@ def share_columns(rle: RLEVolume) -> RLEVolume:
         tiles=np.asarray(rle.tiles),
         empty_dist=np.asarray(rle.empty_dist),
         tail_sums=_tail_sums(rle.count, new_ptr, els_all),
+        shared_tails=True,
     )
 
 

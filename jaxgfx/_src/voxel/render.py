@@ -1,10 +1,12 @@
 """The per-plane ray caster from end to end (thesis 4.5): :func:`render_rle`.
 
 One frame: the vanishing point and the four screen segments (:mod:`.planes`), the
-traversal of every plane into its ray-buffer column (:mod:`.traverse`), the warp to
-the screen (:mod:`.warp`) and, for pixels the warp is unsure of, a short exact
-re-walk.  Its static settings (sizes and switches that fix the program) are one
-:class:`RenderSettings`.
+ray buffer (by default on a single-object map every element scattered into the
+planes that cross its cell, :mod:`.scatter`; else each plane walked cell by
+cell, :mod:`.traverse`, or in blocks, :mod:`.wide`), the warp to the screen
+(:mod:`.warp`) and, for pixels the warp is unsure of, a short exact re-walk.  Its
+static settings (sizes and switches that fix the program) are one
+:class:`~jaxgfx._src.voxel.settings.RenderSettings`.
 
 All functions take the shared :class:`jaxgfx.camera.Camera`; depth is the camera-space
 z (distance along the view axis), ``+inf`` where nothing was hit.  Scene coordinates
@@ -23,13 +25,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, as_float32, focal_lengths, pixel_rays, validate_camera
-from jaxgfx._src.checks import check_float, check_int, static_field
-from jaxgfx._src.frames import BATCHING, per_frame
+from jaxgfx._src.checks import check_float
+from jaxgfx._src.frames import per_frame
 from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
-from jaxgfx._src.voxel.scatter import scatter_frame
+from jaxgfx._src.voxel.scatter import scatter_frame, scatter_limits
+from jaxgfx._src.voxel.settings import RenderSettings
 from jaxgfx._src.voxel.traverse import traverse_lists
 from jaxgfx._src.voxel.warp import (
     empty_warp_tiles,
@@ -140,133 +143,6 @@ def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
         raise ValueError(f"pixels must be > 0, got {pixels}")
     fx, fy = focal_lengths(cam)
     return 2.0 * jnp.maximum(fx, fy) / pixels
-
-
-_TRAVERSALS = ("auto", "wide", "narrow", "scatter")
-_BATCHINGS = BATCHING
-
-
-def _optional_int(name: str, value, low: int) -> int | None:
-    return None if value is None else check_int(name, value, low=low)
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class RenderSettings:
-    """The static settings of :func:`render_rle`: sizes and switches that fix the program.
-
-    A pytree without leaves: every field is static, so ``jax.jit(render_rle)`` needs
-    no ``static_argnames`` and compiles once per distinct settings (the fields are
-    part of the cache key, like shapes).  Frozen, so one instance can be shared.
-    See :func:`render_rle` for what the defaults measure.
-
-    Attributes:
-        num_planes: ray-buffer plane budget (None: :func:`default_num_planes`).
-        max_steps: bound on the 2-D DDA cells per plane (None: :func:`default_max_steps`).
-        oversample: planes per pixel on each segment's far border (1 = thesis
-            Eq. 4.4, default 2).
-        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
-            see ``stats["buffer_overflow"]``.
-        pool_size: one-cell walk: drawn elements a pass keeps, its planes' lists
-            back to back (None: :func:`default_pool_size`).  A frame whose lists do
-            not fit is walked in passes, each warping the planes it walked
-            (``stats["passes"]``): the same frame.  The pool is a fresh buffer
-            every frame, cleared before use: one pool for the most a frame can
-            draw (47 MB at 512x384 with 2x1 AA) cost every frame its clearing and,
-            on the CPU, the first touch of its pages (``rle_bench``'s ``one_pool``
-            columns).
-        refine_steps: if > 0 (default 16), pixels whose ray entered no candidate
-            element re-walk their own ray that many voxels from just before the
-            neighbourhood's depth (not in the thesis).
-        neighbors: adjacent planes on each side whose texels the warp tests against
-            the pixel's ray (default 1; 0 = thesis).
-        refine_budget: largest number of re-walked pixels (None: ``W H / 32``); see
-            ``stats["refine_overflow"]``.
-        elements_per_step: elements of a column handled per loop step (speed only;
-            default 4).
-        planes_per_voxel: if > 0 (default 3), the planes cover only the screen
-            rectangle of the scene box and are spaced at most ``1 / planes_per_voxel``
-            voxels apart at its farthest depth (while the box is wholly in front of
-            the eye), so columns narrower than a pixel are still found and the
-            agreement does not fall with distance; 0 = the thesis's spacing
-            (:func:`~jaxgfx.raycast.screen_segments`).  It also raises the default
-            ``num_planes`` by ``planes_per_voxel (X + Z)``.
-        traversal: ``"narrow"``: one cell per plane per loop step (thousands of
-            steps a frame, each cheap: XLA:CPU's fastest); ``"wide"``: a block of
-            cells per plane per step (tens of steps, each as wide as all planes:
-            what an accelerator needs, as each step is a kernel launch there);
-            ``"scatter"``: every element projected into the planes that cross its
-            cell, each texel keeping its first writer by a scatter-min of the
-            walk order (:mod:`.scatter`: a few tens of wide steps; single-object
-            maps only).
-            ``"auto"`` (default): ``"narrow"`` where the program is lowered for the
-            CPU, ``"wide"`` elsewhere (``jax.lax.platform_dependent``).
-        block_cells: wide traversal: major-axis columns per block (default 16).
-        block_elements: wide traversal: element slots per plane per step (None:
-            ``max(2 max_elements, block_cells, 8)``; at least two columns).
-        slots: wide traversal: planes stepped at once, a done plane's slot taking
-            the next plane (None: all planes every step, fewest steps).
-        window: scatter traversal: (element, plane) pairs per loop step (None:
-            :func:`~jaxgfx._src.voxel.scatter.default_window`).
-        texels: scatter traversal: size of the ray buffer, the planes' rows back
-            to back (None: :func:`~jaxgfx._src.voxel.scatter.default_texels`);
-            a frame with more is drawn in passes (``stats["passes"]``).
-        batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
-            ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
-            ``"auto"`` (default: frames on the CPU, vector elsewhere).
-
-    Raises:
-        TypeError: a count that is not an int, an ``oversample`` that is not a number.
-        ValueError: a count below its least useful value, ``oversample <= 0``.
-    """
-
-    num_planes: int | None = static_field(None)
-    max_steps: int | None = static_field(None)
-    oversample: float = static_field(2.0)
-    buffer_size: int | None = static_field(None)
-    pool_size: int | None = static_field(None)
-    refine_steps: int = static_field(16)
-    neighbors: int = static_field(1)
-    refine_budget: int | None = static_field(None)
-    elements_per_step: int = static_field(4)
-    planes_per_voxel: float = static_field(3.0)
-    traversal: str = static_field("auto")
-    block_cells: int = static_field(16)
-    block_elements: int | None = static_field(None)
-    slots: int | None = static_field(None)
-    window: int | None = static_field(None)
-    texels: int | None = static_field(None)
-    batching: str = static_field("auto")
-
-    def __post_init__(self):
-        # Normalised to Python ints / floats: equal settings hash alike (one compile).
-        fields = dict(
-            num_planes=_optional_int("num_planes", self.num_planes, 1),
-            max_steps=_optional_int("max_steps", self.max_steps, 1),
-            oversample=check_float("oversample", self.oversample),
-            buffer_size=_optional_int("buffer_size", self.buffer_size, 1),
-            pool_size=_optional_int("pool_size", self.pool_size, 1),
-            refine_steps=check_int("refine_steps", self.refine_steps, low=0),
-            neighbors=check_int("neighbors", self.neighbors, low=0),
-            refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
-            elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
-            planes_per_voxel=check_float("planes_per_voxel", self.planes_per_voxel),
-            block_cells=check_int("block_cells", self.block_cells, low=1),
-            block_elements=_optional_int("block_elements", self.block_elements, 1),
-            slots=_optional_int("slots", self.slots, 1),
-            window=_optional_int("window", self.window, 1),
-            texels=_optional_int("texels", self.texels, 1),
-        )
-        if self.traversal not in _TRAVERSALS:
-            raise ValueError(f"traversal must be one of {_TRAVERSALS}, got {self.traversal!r}")
-        if self.batching not in _BATCHINGS:
-            raise ValueError(f"batching must be one of {_BATCHINGS}, got {self.batching!r}")
-        if fields["planes_per_voxel"] < 0:
-            raise ValueError(f"planes_per_voxel must be >= 0, got {fields['planes_per_voxel']}")
-        if fields["oversample"] <= 0:
-            raise ValueError(f"oversample must be > 0, got {fields['oversample']}")
-        for name, value in fields.items():
-            object.__setattr__(self, name, value)
 
 
 @in_32bit
@@ -384,14 +260,18 @@ def _differentiable_depth(cam: Camera, depth):
 
 
 def _render_auto(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
-    """One frame; ``traversal="auto"`` picks by the platform the program is lowered for.
+    """One frame; ``traversal="auto"`` picks by the scene and the platform.
 
-    XLA:CPU runs the one-cell walk faster; an accelerator pays per dependent step
-    (a kernel launch each), so it gets the wide traversal.  Only the chosen
-    branch is compiled.
+    A single-object map the scatter can draw takes it everywhere: a few wide
+    steps a frame, and on XLA:CPU faster than the one-cell walk on every scene
+    but the smallest (``experiments.rle_bench``).  An instance map takes the
+    one-cell walk on the CPU and the wide traversal elsewhere (an accelerator pays
+    per dependent step, a kernel launch each).  Only the chosen branch is compiled.
     """
     if s.traversal != "auto":
         return _render_frame(s, rle, cam, lod)
+    if scatter_limits(rle, _num_planes(s, rle, cam)) is None:
+        return _render_frame(dataclasses.replace(s, traversal="scatter"), rle, cam, lod)
     narrow = dataclasses.replace(s, traversal="narrow")
     wide = dataclasses.replace(s, traversal="wide")
     return jax.lax.platform_dependent(
@@ -400,6 +280,19 @@ def _render_auto(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
         lod,
         cpu=functools.partial(_render_frame, narrow),
         default=functools.partial(_render_frame, wide),
+    )
+
+
+def _num_planes(s: RenderSettings, rle, cam: Camera) -> int:
+    """The frame's static plane budget: ``s.num_planes`` or :func:`default_num_planes`."""
+    if s.num_planes is not None:
+        return s.num_planes
+    return default_num_planes(
+        cam.width,
+        cam.height,
+        s.oversample,
+        scene_shape=rle.shape,
+        planes_per_voxel=s.planes_per_voxel,
     )
 
 
@@ -417,16 +310,9 @@ def _frame_kernel(s: RenderSettings):
 
 def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     """One frame of :func:`render_rle` (its arguments already checked and on the device)."""
-    num_planes, max_steps, oversample = s.num_planes, s.max_steps, s.oversample
+    max_steps, oversample = s.max_steps, s.oversample
     buffer_size, elements_per_step = s.buffer_size, s.elements_per_step
-    if num_planes is None:
-        num_planes = default_num_planes(
-            cam.width,
-            cam.height,
-            oversample,
-            scene_shape=rle.shape,
-            planes_per_voxel=s.planes_per_voxel,
-        )
+    num_planes = _num_planes(s, rle, cam)
     if max_steps is None:
         max_steps = default_max_steps(rle)
     rows = max(cam.width, cam.height)

@@ -74,6 +74,7 @@ __all__ = [
     "scatter_frame",
     "scatter_ray_buffer",
     "check_scatter_scene",
+    "scatter_limits",
     "default_window",
     "default_texels",
 ]
@@ -102,31 +103,48 @@ def default_window(width: int, height: int) -> int:
     return 1 << max(14, int(np.ceil(np.log2(max(width * height // 4, 1)))))
 
 
-def check_scatter_scene(rle, num_planes: int, texels: int, rows: int) -> None:
-    """Raises ``ValueError`` where :func:`scatter_ray_buffer`'s packed words cannot hold a scene."""
+def scatter_limits(rle, num_planes: int) -> str | None:
+    """Why :func:`scatter_ray_buffer` cannot draw a scene, or None.
+
+    A single-object map (an instance map's column stands in every tile that
+    holds the object) whose columns own their tails (not
+    :func:`~jaxgfx.raycast.share_columns`'),
+    below 8192 columns a side, 4096 voxels high, 8 levels and 64 elements a
+    column (its packed words), seen through fewer than 16383 planes.
+    """
     if tuple(rle.tiles.shape) != (1, 1):
-        raise ValueError(
+        return (
             "traversal='scatter' draws single-object maps; an instance map "
             f"(tiles {tuple(rle.tiles.shape)}) needs traversal='narrow' or 'wide'"
         )
+    if rle.shared_tails:
+        # Its elements are listed once per stored element, each in one column.
+        return (
+            "traversal='scatter' draws columns with tails of their own; a volume from "
+            "share_columns needs traversal='narrow' or 'wide'"
+        )
     X, Y, Z = rle.shape
     if max(X, Z) >= 1 << _XZ_BITS or Y >= 1 << _H_BITS or rle.levels > 8:
-        raise ValueError(
+        return (
             f"traversal='scatter' takes maps below {1 << _XZ_BITS} columns a side, "
             f"{1 << _H_BITS} voxels high and 8 levels, got {rle.shape}, {rle.levels} levels"
         )
     if 2 * rle.max_elements > 128:
-        raise ValueError(
-            f"traversal='scatter' takes columns of at most 64 elements, got {rle.max_elements}"
-        )
+        return f"traversal='scatter' takes columns of at most 64 elements, got {rle.max_elements}"
+    if num_planes >= 1 << _N_BITS:
+        return f"traversal='scatter' takes at most {(1 << _N_BITS) - 1} planes, got {num_planes}"
+    return None
+
+
+def check_scatter_scene(rle, num_planes: int, texels: int, rows: int) -> None:
+    """Raises ``ValueError`` where :func:`scatter_ray_buffer` cannot draw a scene or table."""
+    reason = scatter_limits(rle, num_planes)
+    if reason is not None:
+        raise ValueError(reason)
     if not 2 * rows <= texels < 2**31:
         raise ValueError(
             f"texels must be at least two ray-buffer columns ({2 * rows}) and below "
             f"2^31, got {texels}"
-        )
-    if num_planes >= 1 << _N_BITS:
-        raise ValueError(
-            f"traversal='scatter' takes at most {(1 << _N_BITS) - 1} planes, got {num_planes}"
         )
 
 

@@ -167,11 +167,14 @@ def _column_planes(rle, cam: Camera, pl: _Planes):
     corner = jnp.stack([angles[i00 + d] for d in (0, 1, zl_n, zl_n + 1)])
     a0, a1 = jnp.min(corner, axis=0), jnp.max(corner, axis=0)
     # A cell seen under more than a half turn lies across the back direction:
-    # its directions are [a1, pi] and [-pi, a0].
+    # its directions run from its corners' least angle >= 0 up to pi, and from
+    # -pi up to their greatest angle < 0.
     wrap = (a1 - a0) > np.pi
-    lo1 = jnp.searchsorted(pl.angle, jnp.where(wrap, a1, a0), side="left").astype(jnp.int32)
+    w0 = jnp.min(jnp.where(corner >= 0, corner, np.inf), axis=0)
+    w1 = jnp.max(jnp.where(corner < 0, corner, -np.inf), axis=0)
+    lo1 = jnp.searchsorted(pl.angle, jnp.where(wrap, w0, a0), side="left").astype(jnp.int32)
     hi1 = jnp.searchsorted(pl.angle, jnp.where(wrap, np.pi, a1), side="right").astype(jnp.int32)
-    hi2 = jnp.where(wrap, jnp.searchsorted(pl.angle, a0, side="right").astype(jnp.int32), 0)
+    hi2 = jnp.where(wrap, jnp.searchsorted(pl.angle, w1, side="right").astype(jnp.int32), 0)
     # The eye's own cell: every plane starts in it.
     eye = (x0 <= 0) & (x1 >= 0) & (z0 <= 0) & (z1 >= 0)
     if rle.levels > 1:
