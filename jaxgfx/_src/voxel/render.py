@@ -163,8 +163,10 @@ def render_rle(
     per frame; shard the batch over devices to use more cores,
     :func:`jaxgfx.sweep.sharded_renderer`); lowered for an accelerator it renders
     them as one wider frame, a batch taking about its slowest frame's dependent
-    loop steps.  ``traversal`` picks the one-cell walk (:mod:`.traverse`) on the CPU
-    and the wide-step walk (:mod:`.wide`) elsewhere.
+    loop steps.  The default ``traversal`` scatters a single-object map's elements
+    into the planes (:mod:`.scatter`, every platform); an instance map takes the
+    one-cell walk (:mod:`.traverse`) on the CPU and the wide-step walk
+    (:mod:`.wide`) elsewhere.
 
     The depth is differentiable w.r.t. the camera: the traversal's choices are
     discrete (no gradient flows through them) and each hit pixel's depth carries

@@ -41,8 +41,8 @@ class RenderSettings:
             :func:`~jaxgfx.raycast.default_max_steps`).
         oversample: planes per pixel on each segment's far border (1 = thesis
             Eq. 4.4, default 2).
-        buffer_size: drawn elements kept per plane (None: ``max(64, max(W, H) // 2)``);
-            see ``stats["buffer_overflow"]``.
+        buffer_size: one-cell walk and wide traversal: drawn elements kept per plane
+            (None: ``max(64, max(W, H) // 2)``); see ``stats["buffer_overflow"]``.
         pool_size: one-cell walk: drawn elements a pass keeps, its planes' lists
             back to back (None: :func:`~jaxgfx.raycast.default_pool_size`).  A frame whose lists do
             not fit is walked in passes, each warping the planes it walked
