@@ -69,13 +69,18 @@ def _pixel_writer(cam: Camera, seg: Segments, buffer: RayBuffer, di):
     return ok, base + lo, jnp.where(inside, e, -1)
 
 
-def _harvest(cam: Camera, seg: Segments, buffer: RayBuffer, span: int):
-    """``buffer.candidates`` with the writers of a pass that is not the last (its planes'
-    first texels in ``[offset, offset + span)``)."""
+def _harvest(cam: Camera, seg: Segments, buffer: RayBuffer, span: int | None):
+    """``buffer.candidates`` with the writers of the pass in ``buffer.element`` added.
+
+    The pass's planes have their first texels in ``[offset, offset + span)``
+    (``span=None``: the last pass, every plane from ``offset`` on).
+    """
     n = buffer.candidates.shape[0] // 2
     d = jnp.arange(-n, n + 1, dtype=jnp.int32)[:, None, None]
     ok, first, e = _pixel_writer(cam, seg, buffer, d)
-    mine = ok & (first >= 0) & (first < span)
+    mine = ok & (first >= 0)
+    if span is not None:
+        mine = mine & (first < span)
     return jnp.where(mine, e, buffer.candidates)
 
 
@@ -96,9 +101,7 @@ def warp_texels(rle, cam: Camera, seg: Segments, buffer: RayBuffer, el: _Element
     hmask = (1 << _H_BITS) - 1
 
     # Every pixel's writers, the last pass's added to the earlier passes'.
-    d = jnp.arange(-n, n + 1, dtype=jnp.int32)[:, None, None]
-    ok, first, e_last = _pixel_writer(cam, seg, buffer, d)
-    writers = _once(jnp.where(ok & (first >= 0), e_last, buffer.candidates))
+    writers = _once(_harvest(cam, seg, buffer, None))
 
     def lookup(di):
         # Selects, not a gather: XLA:CPU runs this warp far slower with one.
