@@ -58,7 +58,6 @@ from jaxgfx._src.voxel.scatter_planes import (
     _column_planes,
     _plane_tables,
     _Planes,
-    _running_max,
 )
 from jaxgfx._src.voxel.scatter_warp import (
     _H_BITS,
@@ -101,6 +100,10 @@ def default_texels(width: int, height: int, num_planes: int, rows: int) -> int:
 def default_window(width: int, height: int) -> int:
     """Pairs per loop step: a quarter of a frame's pixels, at least 2^14 (a power of two)."""
     return 1 << max(14, int(np.ceil(np.log2(max(width * height // 4, 1)))))
+
+
+def _running_max(x):
+    return jax.lax.associative_scan(jnp.maximum, x)
 
 
 def scatter_limits(rle, num_planes: int) -> str | None:
@@ -331,8 +334,6 @@ def scatter_ray_buffer(
     slot_q = jnp.arange(Q, dtype=jnp.int32)
     slot_r = jnp.arange(R, dtype=jnp.int32)
     pad = jnp.zeros((Q,), jnp.int32)
-    n_live = jnp.minimum(pl.n_live, pl.first.shape[0])
-    first_live = jnp.where(jnp.arange(pl.first.shape[0]) < n_live, pl.first, 2**31 - 1)
 
     def window_step(p_lo, offset, order, first_pair, incl, total, planes_g):
         def body(s: _ScatterLoop) -> _ScatterLoop:
@@ -392,8 +393,9 @@ def scatter_ray_buffer(
             lambda: _harvest(cam, seg, buffer(ps, offset - span), span),
             lambda: ps.candidates,
         )
-        p_lo = jnp.searchsorted(first_live, offset, side="left").astype(jnp.int32)
-        p_hi = jnp.searchsorted(first_live, offset + span, side="left").astype(jnp.int32)
+        # Planes without rows (sorted last, first texel at the end) cross no cell.
+        p_lo = jnp.searchsorted(pl.first, offset, side="left").astype(jnp.int32)
+        p_hi = jnp.searchsorted(pl.first, offset + span, side="left").astype(jnp.int32)
         n_pairs, planes_g = _pass_planes(el, p_lo, p_hi)
         # The elements with pairs in the pass, compacted (and padded by a window
         # of none): a window of Q pairs spans at most Q of them, so a step's

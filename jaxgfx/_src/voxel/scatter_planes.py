@@ -47,10 +47,6 @@ class _Planes(NamedTuple):
     plane_rows: jax.Array  # (P,) int32 ``lo | hi << 16`` in plane order (``hi = lo``: no rows)
 
 
-def _running_max(x):
-    return jax.lax.associative_scan(jnp.maximum, x)
-
-
 def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) -> _Planes:
     """Each plane's constants (the one-cell walk's), sorted by x-z direction (step 1)."""
     consts, c0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=1))(planes)
