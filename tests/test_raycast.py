@@ -768,6 +768,30 @@ def test_scatter_traversal_batches_and_lowers_for_accelerators(scene):
     assert exported.platforms == ("cuda", "tpu")
 
 
+def test_scatter_window_fills_an_accelerator(scene):
+    # On the CPU a window of pairs is a quarter of the frame's pixels (cache-sized);
+    # on an accelerator, where every loop step is a launch and a host sync, four
+    # times the pixels, shared by the frames of a vectorized batch.  The program
+    # lowered for CUDA carries the accelerator's window (its rows: 4 windows).
+    from jax import export
+
+    from jaxgfx._src.voxel.scatter import default_window
+
+    assert default_window(512, 384) == 1 << 16
+    assert default_window(512, 384, accelerator=True) == 1 << 20
+    assert default_window(512, 384, accelerator=True, frames=8) == 1 << 17
+    assert default_window(64, 48, accelerator=True, frames=64) == 1 << 14
+    with pytest.raises(ValueError, match="frames"):
+        default_window(8, 8, frames=0)
+    _, rle, _, _ = scene
+    fn = jax.jit(lambda c: RC.render_rle(rle, c, settings=SCATTER))
+    rows = f"tensor<{4 * default_window(W, H, accelerator=True)}x"
+    assert default_window(W, H, accelerator=True) > default_window(W, H)
+    for platform, window in (("cuda", True), ("cpu", False)):
+        text = export.export(fn, platforms=(platform,))(CAMERAS[2][1]).mlir_module()
+        assert (rows in text) == window, platform
+
+
 def test_scatter_traversal_rejects_instance_maps(scene):
     vox = _scene()
     inst = V.place_instances(V.encode_rle(vox, levels=1), [[0, 0], [1, 1]], (2, 2))

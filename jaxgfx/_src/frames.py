@@ -170,7 +170,12 @@ def split_rows(fn: Callable, rows: Sequence[int]) -> Callable:
     return wrapped
 
 
-def per_frame(frame_fn: Callable, batching: str = "auto", chunk: int = 1) -> Callable:
+def per_frame(
+    frame_fn: Callable,
+    batching: str = "auto",
+    chunk: int = 1,
+    batch_fn: Callable[[int], Callable] | None = None,
+) -> Callable:
     """``frame_fn`` (written for one frame) with a batching rule chosen by platform.
 
     Under ``jax.vmap`` the batch runs
@@ -192,6 +197,10 @@ def per_frame(frame_fn: Callable, batching: str = "auto", chunk: int = 1) -> Cal
         frame_fn: function of one frame's arrays (pytrees allowed), returning a pytree.
         batching: one of :data:`BATCHING` (static).
         chunk: frames per step of the ``"frames"`` rule (static).
+        batch_fn: ``batch_fn(n)`` is the function of one frame that the ``"vectorized"``
+            rule maps over a batch of ``n`` frames on one device (default ``frame_fn``):
+            a kernel whose static sizes follow the batch (the scatter traversal's
+            window on an accelerator) takes them from ``n``.
 
     Returns:
         A function with ``frame_fn``'s signature whose ``vmap`` follows the rule.
@@ -226,7 +235,8 @@ def per_frame(frame_fn: Callable, batching: str = "auto", chunk: int = 1) -> Cal
             return jax.lax.map(lambda one: kernel(*rebuild(one, common)), frame_args)
 
         def vectorized(frame_args, common):
-            return jax.vmap(lambda *one: frame_fn(*rebuild(one, common)))(*frame_args)
+            fn = frame_fn if batch_fn is None else batch_fn(frame_args[0].shape[0])
+            return jax.vmap(lambda *one: fn(*rebuild(one, common)))(*frame_args)
 
         def local(frame_args, common):
             if batching == "frames":

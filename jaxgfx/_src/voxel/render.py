@@ -261,7 +261,7 @@ def _differentiable_depth(cam: Camera, depth):
     return jnp.where(hit, depth + (t_enter - jax.lax.stop_gradient(t_enter)), depth)
 
 
-def _render_auto(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
+def _render_auto(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> RenderOutput:
     """One frame; ``traversal="auto"`` picks by the scene and the platform.
 
     A single-object map the scatter can draw takes it everywhere: a few wide
@@ -269,11 +269,12 @@ def _render_auto(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     but the smallest (``experiments.rle_bench``).  An instance map takes the
     one-cell walk on the CPU and the wide traversal elsewhere (an accelerator pays
     per dependent step, a kernel launch each).  Only the chosen branch is compiled.
+    ``frames``: the frames of the vectorized batch this frame is one of.
     """
     if s.traversal != "auto":
-        return _render_frame(s, rle, cam, lod)
+        return _render_frame(s, rle, cam, lod, frames)
     if scatter_limits(rle, _num_planes(s, rle, cam)) is None:
-        return _render_frame(dataclasses.replace(s, traversal="scatter"), rle, cam, lod)
+        return _render_frame(dataclasses.replace(s, traversal="scatter"), rle, cam, lod, frames)
     narrow = dataclasses.replace(s, traversal="narrow")
     wide = dataclasses.replace(s, traversal="wide")
     return jax.lax.platform_dependent(
@@ -307,11 +308,19 @@ def _frame_kernel(s: RenderSettings):
     longest frame and through every branch; one frame at a time is bit-identical to a loop
     over the cameras.  Elsewhere the batch is one program (:func:`jaxgfx._src.frames.per_frame`).
     """
-    return per_frame(functools.partial(_render_auto, s), s.batching)
+    return per_frame(
+        functools.partial(_render_auto, s),
+        s.batching,
+        batch_fn=lambda n: functools.partial(_render_auto, s, frames=n),
+    )
 
 
-def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
-    """One frame of :func:`render_rle` (its arguments already checked and on the device)."""
+def _render_frame(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> RenderOutput:
+    """One frame of :func:`render_rle` (its arguments already checked and on the device).
+
+    ``frames``: the frames of the vectorized batch this frame is one of (the scatter's
+    accelerator window).
+    """
     max_steps, oversample = s.max_steps, s.oversample
     buffer_size, elements_per_step = s.buffer_size, s.elements_per_step
     num_planes = _num_planes(s, rle, cam)
@@ -332,7 +341,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     planes = jnp.arange(num_planes, dtype=jnp.int32)
     if s.traversal == "scatter":
         image, stats, steps, passes = scatter_frame(
-            rle, cam, seg, planes, rows=rows, lod_distance=lod, settings=s
+            rle, cam, seg, planes, rows=rows, lod_distance=lod, settings=s, frames=frames
         )
         # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
         warped = (*image, jnp.int32(0))

@@ -39,6 +39,7 @@ takes single-object maps.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -97,9 +98,19 @@ def default_texels(width: int, height: int, num_planes: int, rows: int) -> int:
     return int(max(min(num_planes * rows, 4 * width * height, _MAX_TEXELS), 2 * rows))
 
 
-def default_window(width: int, height: int) -> int:
-    """Pairs per loop step: a quarter of a frame's pixels, at least 2^14 (a power of two)."""
-    return 1 << max(14, int(np.ceil(np.log2(max(width * height // 4, 1)))))
+def default_window(width: int, height: int, *, accelerator: bool = False, frames: int = 1) -> int:
+    """Pairs per loop step, a power of two of at least 2^14.
+
+    On the CPU a quarter of a frame's pixels: wider windows leave the cache and
+    measured slower (``experiments.rle_bench``).  On an accelerator a step is a
+    kernel launch or more and a host sync, so a window is as wide as the
+    device fills: four times a frame's pixels (2^20 pairs at 512x384, one or two
+    steps for a frame), shared by the ``frames`` of a vectorized batch.
+    """
+    if frames < 1:
+        raise ValueError(f"frames must be >= 1, got {frames!r}")
+    want = 4 * width * height // frames if accelerator else width * height // 4
+    return 1 << max(14, int(np.ceil(np.log2(max(want, 1)))))
 
 
 def _running_max(x):
@@ -438,12 +449,16 @@ def scatter_ray_buffer(
     return buffer(ps, (ps.passes - 1) * span), el, stats, ps.steps, ps.passes
 
 
-def scatter_frame(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod_distance, settings):
+def scatter_frame(
+    rle, cam: Camera, seg: Segments, planes, *, rows: int, lod_distance, settings, frames: int = 1
+):
     """One frame's ray buffer scattered and warped (``RenderSettings(traversal="scatter")``).
 
     ``settings``: the :class:`~jaxgfx.raycast.RenderSettings` (its ``window``,
     ``texels`` and ``neighbors``; None sizes take :func:`default_window` and
-    :func:`default_texels`).
+    :func:`default_texels`).  Without a ``window`` the CPU's and the
+    accelerators' default windows (``frames``: the frames of the vectorized batch
+    this frame is one of) are chosen when the program is lowered.
 
     Returns:
         ``((color, depth, entered), stats (4,), steps (), passes ())``:
@@ -451,18 +466,32 @@ def scatter_frame(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod_dis
         steps and passes.
     """
     P = planes.shape[0]
-    window = settings.window or default_window(cam.width, cam.height)
     texels = settings.texels or default_texels(cam.width, cam.height, P, rows)
     check_scatter_scene(rle, P, texels, rows)
-    buffer, elements, stats, steps, passes = scatter_ray_buffer(
-        rle,
-        cam,
-        seg,
-        planes,
-        rows=rows,
-        lod_distance=lod_distance,
-        window=window,
-        texels=texels,
-        neighbors=settings.neighbors,
+
+    def draw(window, rle, cam, seg, planes, lod_distance):
+        buffer, elements, stats, steps, passes = scatter_ray_buffer(
+            rle,
+            cam,
+            seg,
+            planes,
+            rows=rows,
+            lod_distance=lod_distance,
+            window=window,
+            texels=texels,
+            neighbors=settings.neighbors,
+        )
+        return warp_texels(rle, cam, seg, buffer, elements), stats, steps, passes
+
+    args = (rle, cam, seg, planes, lod_distance)
+    if settings.window:
+        return draw(settings.window, *args)
+    on_cpu = default_window(cam.width, cam.height)
+    elsewhere = default_window(cam.width, cam.height, accelerator=True, frames=frames)
+    if on_cpu == elsewhere:
+        return draw(on_cpu, *args)
+    return jax.lax.platform_dependent(
+        *args,
+        cpu=functools.partial(draw, on_cpu),
+        default=functools.partial(draw, elsewhere),
     )
-    return warp_texels(rle, cam, seg, buffer, elements), stats, steps, passes
