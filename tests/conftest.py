@@ -4,12 +4,26 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
-import jax
-import numpy as np
-import pytest
+# One persistent compilation cache for the whole run, set before JAX starts: both xdist
+# workers and every CLI and experiment run they start (the variables reach subprocesses)
+# share it, so a program that several processes compile (an experiment's kernel a test
+# compiled too, the report's run of another benchmark) compiles once.  Programs that
+# compile in under 0.3 s (eager ops, thousands of them) are not written.  The controller
+# makes it (its workers inherit the variables) and removes it at the end.
+_OWN_CACHE = None
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _OWN_CACHE = tempfile.mkdtemp(prefix="jaxgfx-test-jit-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _OWN_CACHE
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.3"
+    os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "-1"
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 # Compiling is most of this suite's time, and LLVM's optimizer about a fifth of compiling, so
 # tests (and the CLI and experiment runs they start) compile at XLA:CPU's lowest backend
@@ -35,11 +49,28 @@ DATA = Path(
 os.environ.setdefault("JAXGFX_CACHE_DIR", tempfile.mkdtemp(prefix="jaxgfx-test-cache-"))
 
 
-# Modules whose tests run for tens of seconds each (subprocesses, the experiments' --quick runs),
-# scheduled first.  xdist gives each worker whole modules (--dist loadfile), so a module's
+# The longest modules (``pytest --durations=0``, summed per module), longest first, scheduled
+# before the rest.  xdist gives each worker whole modules (--dist loadfile), so a module's
 # shared jitted functions compile once, not once per worker; a long module started last would
-# leave the other worker idle at the end of the run.
-SLOW_FIRST = ("test_experiments.py", "test_sweep.py", "test_showcase.py", "test_cli.py")
+# leave the other worker idle at the end of the run.  xdist's own order (by test count) is off
+# (``--no-loadscope-reorder`` in pyproject.toml), so this one holds.
+SLOW_FIRST = (
+    "test_experiments.py",
+    "test_raycast.py",
+    "test_sweep.py",
+    "test_terrain.py",
+    "test_raster.py",
+    "test_skin.py",
+    "test_silhouette.py",
+    "test_showcase.py",
+    "test_fit_images.py",
+    "test_inputs.py",
+)
+
+
+def pytest_unconfigure(config):
+    if _OWN_CACHE is not None and not hasattr(config, "workerinput"):
+        shutil.rmtree(_OWN_CACHE, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(items):
