@@ -15,7 +15,10 @@ with the one-cell walk.  Beside it: the wide traversals, the one-cell walk on
 single-object maps (``walk_*``), and the one-cell walk with one element pool for
 the most a frame can draw (``one_pool``, a single pass; the walk's pool is
 bounded and a frame that draws more takes more ``passes``), their frames taking
-turns with the default's (``ab_ours_ms``, ``ab_walk_ms``, ``one_pool_ms``).
+turns with the default's (``ab_ours_ms``, ``ab_walk_ms``, ``one_pool_ms``).  On an
+accelerator the walk beside the default is the wide traversal (the renderer's walk
+there), and the CPU's variants (plane slots, one pool, the thesis's settings) are
+left out.
 
 The peers a user would pick instead (``experiments._rle_peers``): Embree
 (open3d, all cores) on the same voxels' exposed cube faces and on the
