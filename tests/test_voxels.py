@@ -707,3 +707,20 @@ def test_tail_sums_read_columns_as_the_decoder():
         for a, b in zip(got[1:3] + got[4:] + every[1:3] + every[4:],
                         (*ref[1:3], ref[4], ref[2], *ref[1:3], ref[4])):  # fmt: skip
             np.testing.assert_array_equal(np.asarray(a)[valid], np.asarray(b)[valid])
+    # The re-walk's voxel reads give every voxel of the dense grid: solid where it
+    # is, with its colour (the tall column: its runs, its gap, above and below it).
+    from jaxgfx._src.voxel.warp import _voxel_lookup
+
+    for vox in (obj, tall):
+        occ, col = V.voxels_to_dense(vox)
+        rle = V.as_jax(V.encode_rle(vox))
+        xyz = np.argwhere(np.ones(occ.shape, bool)) if vox is obj else np.argwhere(occ)
+        xyz = np.concatenate([xyz, [[0, 2999, 0], [0, 299, 0], [1, 5, 1], [0, -1, 0]]])
+        look = jax.jit(jax.vmap(lambda p, r=rle: _voxel_lookup(r, p[0], p[1], p[2])))
+        solid, cidx = (np.asarray(a) for a in look(xyz.astype(np.int32)))
+        inside = (xyz >= 0).all(1) & (xyz < occ.shape).all(1)
+        want = np.zeros(len(xyz), bool)
+        want[inside] = occ[tuple(xyz[inside].T)]
+        np.testing.assert_array_equal(solid, want)
+        colors = np.asarray(rle.colors)[cidx[solid]]
+        np.testing.assert_array_equal(colors, col[tuple(xyz[solid].T)])
