@@ -101,8 +101,8 @@ def default_texels(width: int, height: int, num_planes: int, rows: int) -> int:
 def default_window(width: int, height: int, *, accelerator: bool = False, frames: int = 1) -> int:
     """Pairs per loop step, a power of two of at least 2^14.
 
-    On the CPU a quarter of a frame's pixels: wider windows leave the cache and
-    measured slower (``experiments.rle_bench``).  On an accelerator a step is a
+    On the CPU a quarter of a frame's pixels, so that a step's tables stay in
+    cache.  On an accelerator a step is a
     kernel launch or more and a host sync, so a window is as wide as the
     device fills: four times a frame's pixels (2^20 pairs at 512x384, one or two
     steps for a frame), shared by the ``frames`` of a vectorized batch.
