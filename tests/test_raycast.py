@@ -781,6 +781,7 @@ def test_scatter_window_fills_an_accelerator(scene):
     assert default_window(512, 384, accelerator=True) == 1 << 20
     assert default_window(512, 384, accelerator=True, frames=8) == 1 << 17
     assert default_window(64, 48, accelerator=True, frames=64) == 1 << 14
+    assert default_window(3840, 2160, accelerator=True) == 1 << 22  # bounded memory
     with pytest.raises(ValueError, match="frames"):
         default_window(8, 8, frames=0)
     _, rle, _, _ = scene

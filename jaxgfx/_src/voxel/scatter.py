@@ -105,11 +105,13 @@ def default_window(width: int, height: int, *, accelerator: bool = False, frames
     cache.  On an accelerator a step is a
     kernel launch or more and a host sync, so a window is as wide as the
     device fills: four times a frame's pixels (2^20 pairs at 512x384, one or two
-    steps for a frame), shared by the ``frames`` of a vectorized batch.
+    steps for a frame), shared by the ``frames`` of a vectorized batch, and at
+    most 2^22 (a step's row arrays, four windows of int32, stay at 64 MB each:
+    a 4K frame takes a few steps instead).
     """
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames!r}")
-    want = 4 * width * height // frames if accelerator else width * height // 4
+    want = min(4 * width * height // frames, 1 << 22) if accelerator else width * height // 4
     return 1 << max(14, int(np.ceil(np.log2(max(want, 1)))))
 
 
