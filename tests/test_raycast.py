@@ -791,6 +791,11 @@ def test_scatter_window_fills_an_accelerator(scene):
     for platform, window in (("cuda", True), ("cpu", False)):
         text = export.export(fn, platforms=(platform,))(CAMERAS[2][1]).mlir_module()
         assert (rows in text) == window, platform
+    # A vectorized batch of 4 shares the window: its frames take a quarter each.
+    assert default_window(W, H, accelerator=True, frames=4) < default_window(W, H, accelerator=True)
+    batch = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=SCATTER)))
+    four = stack_cameras([c for _, c in CAMERAS[:4]])
+    assert rows not in export.export(batch, platforms=("cuda",))(four).mlir_module()
 
 
 def test_scatter_traversal_rejects_instance_maps(scene):
