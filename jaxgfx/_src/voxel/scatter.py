@@ -472,7 +472,7 @@ def scatter_frame(
     check_scatter_scene(rle, P, texels, rows)
 
     def draw(window, rle, cam, seg, planes, lod_distance):
-        buffer, elements, stats, steps, passes = scatter_ray_buffer(
+        return scatter_ray_buffer(
             rle,
             cam,
             seg,
@@ -483,17 +483,18 @@ def scatter_frame(
             texels=texels,
             neighbors=settings.neighbors,
         )
-        return warp_texels(rle, cam, seg, buffer, elements), stats, steps, passes
 
+    # Only the traversal depends on the window; the warp is traced once.
     args = (rle, cam, seg, planes, lod_distance)
-    if settings.window:
-        return draw(settings.window, *args)
     on_cpu = default_window(cam.width, cam.height)
     elsewhere = default_window(cam.width, cam.height, accelerator=True, frames=frames)
-    if on_cpu == elsewhere:
-        return draw(on_cpu, *args)
-    return jax.lax.platform_dependent(
-        *args,
-        cpu=functools.partial(draw, on_cpu),
-        default=functools.partial(draw, elsewhere),
-    )
+    if settings.window is not None or on_cpu == elsewhere:
+        drawn = draw(settings.window or on_cpu, *args)
+    else:
+        drawn = jax.lax.platform_dependent(
+            *args,
+            cpu=functools.partial(draw, on_cpu),
+            default=functools.partial(draw, elsewhere),
+        )
+    buffer, elements, stats, steps, passes = drawn
+    return warp_texels(rle, cam, seg, buffer, elements), stats, steps, passes
