@@ -724,3 +724,29 @@ def test_tail_sums_read_columns_as_the_decoder():
         np.testing.assert_array_equal(solid, want)
         colors = np.asarray(rle.colors)[cidx[solid]]
         np.testing.assert_array_equal(colors, col[tuple(xyz[solid].T)])
+
+
+def test_window_coverage_test_leaves_out_only_hidden_pairs():
+    """A pair is left out only where every texel it reaches holds a nearer writer."""
+    from jaxgfx._src.voxel.scatter import _CULL_BLOCK, _NO_KEY, _hidden
+
+    rng = np.random.default_rng(3)
+    T = 50 * _CULL_BLOCK + 7  # a last, partial block
+    table = rng.integers(0, 1000, T).astype(np.int32)
+    table[rng.random(T) < 0.02] = _NO_KEY  # texels no writer reached yet
+    n = rng.integers(0, 2 * _CULL_BLOCK + 3, 4000).astype(np.int32)
+    t0 = rng.integers(0, T - n + 1).astype(np.int32)
+    key = rng.integers(0, 1200, 4000).astype(np.int32)
+    hidden = np.asarray(jax.jit(_hidden)(table, n, key, t0))
+    nearer = np.array([np.all(table[a : a + m] < k) for a, m, k in zip(t0, n, key)])
+    lo = t0 // _CULL_BLOCK
+    # Blocks as the test reads them: the last one padded with texels no one drew.
+    table = np.pad(table, (0, -T % _CULL_BLOCK), constant_values=_NO_KEY)
+    whole = np.array(
+        [np.all(table[b * _CULL_BLOCK : (b + 1) * _CULL_BLOCK] < k) for b, k in zip(lo, key)]
+    )
+    in_block = (t0 + n - 1) // _CULL_BLOCK == lo
+    assert not np.any(hidden & ~nearer & (n > 0))
+    # Where the pair's block holds only nearer writers, the test sees it.
+    np.testing.assert_array_equal(hidden[in_block & (n > 0)], whole[in_block & (n > 0)])
+    assert np.sum(hidden & (n > 0)) > 100

@@ -30,9 +30,12 @@ back to back, so memory is bounded and the frame takes one loop step per
 window (1 to 15 over ``rle_bench``'s views), each as wide as the window.  A
 frame whose planes have more rows than the table holds draws runs of sorted
 planes in turn (passes), each projecting only its planes' pairs.
-Elements are the same as the per-plane walk's; the coverage culling's saving is lost (every
-element in a crossed cell is projected), while the thousands of dependent
-one-cell steps are gone.  Instance maps are not enumerated this way (a
+Elements are the same as the per-plane walk's, and every element in a crossed
+cell is projected, while the thousands of dependent one-cell steps are gone.
+Of the walk's coverage culling (4.5.4.3) a coarse form stays: a window's pair
+whose rows already hold nearer writers from the windows before writes no row
+(:func:`_hidden`), so the row work follows what is still open, as far as the
+columns' order puts near elements first.  Instance maps are not enumerated this way (a
 column stands in every tile that holds the object): :func:`scatter_ray_buffer`
 takes single-object maps.
 """
@@ -84,6 +87,7 @@ _NO_KEY = np.int32(2**31 - 1)
 # Bit fields of the packed per-element words (checked by check_scatter_scene).
 _N_BITS = 14  # planes of a column's first run
 _MAX_TEXELS = 1 << 24  # the default table's largest size (two int32 words a texel)
+_CULL_BLOCK = 16  # texels per block of the windows' coverage test (_hidden)
 
 
 def default_texels(width: int, height: int, num_planes: int, rows: int) -> int:
@@ -263,6 +267,25 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     return jnp.where(seen, r1 - r0, 0), key, pl.base[ps] - offset + r0
 
 
+def _hidden(table, n_rows, key, texel0):
+    """(Q,) bool: the pair's rows already hold writers in front of it, in every texel.
+
+    The window's pairs are tested against the blocks of ``_CULL_BLOCK`` texels
+    of the table so far (each block's largest key), two reads a pair: a pair
+    whose rows span at most two blocks, all of whose writers have smaller keys,
+    cannot win a texel and writes no row.  The walk's coverage test (4.5.4.3),
+    done per window instead of per cell: which pairs it catches depends on the
+    order the columns come in, what the frame shows does not.
+    """
+    T = table.shape[0]
+    nb = -(-T // _CULL_BLOCK)
+    padded = jnp.pad(table, (0, nb * _CULL_BLOCK - T), constant_values=_NO_KEY)
+    blocks = jnp.max(padded.reshape(nb, _CULL_BLOCK), axis=1)
+    a = jnp.clip(texel0, 0, T - 1) // _CULL_BLOCK
+    b = jnp.clip(texel0 + n_rows - 1, 0, T - 1) // _CULL_BLOCK
+    return (b - a <= 1) & (jnp.maximum(blocks[a], blocks[b]) < key)
+
+
 class _ScatterLoop(NamedTuple):
     """State of :func:`scatter_ray_buffer`'s loop over pair windows."""
 
@@ -366,6 +389,7 @@ def scatter_ray_buffer(
             k = s.start + slot_q - first_pair[c]
             ok = s.start + slot_q < total
             n_rows, key, texel0 = _pair_rows(rle, cam, pl, el, e, k, ok, planes_g[c], p_lo, offset)
+            n_rows = jnp.where(_hidden(s.key, n_rows, key, texel0), 0, n_rows)
             # As many whole pairs as the window's rows hold.
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
             r_incl = jnp.cumsum(n_rows)
