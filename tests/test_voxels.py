@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from jaxgfx import raycast as V
+from jaxgfx.camera import look_at
 
 
 def _random_voxels(rng, shape, n):
@@ -750,3 +751,24 @@ def test_window_coverage_test_leaves_out_only_hidden_pairs():
     # Where the pair's block holds only nearer writers, the test sees it.
     np.testing.assert_array_equal(hidden[in_block & (n > 0)], whole[in_block & (n > 0)])
     assert np.sum(hidden & (n > 0)) > 100
+
+
+def test_draw_order_takes_every_element_once_near_columns_first():
+    from jaxgfx._src.voxel.scatter import _draw_order
+
+    rle = V.as_jax(V.encode_rle(_random_voxels(np.random.default_rng(4), (6, 9, 5), 60), levels=2))
+    C = rle.count.shape[0]
+    n = C + int(rle.elements.shape[0])
+    X, _, Z = rle.level_shapes[0]
+    for eye in ([-40.0, 3.0, 2.0], [3.0, 3.0, 60.0], [9.0, 3.0, -1.0], [2.0, 3.0, -30.0]):
+        cam = look_at(eye, [3.0, 4.0, 2.5], 50.0, 16, 12)
+        order = np.asarray(_draw_order(rle, cam, n))
+        np.testing.assert_array_equal(np.sort(order), np.arange(n))
+        assert np.all(order[:C] < C)  # the column heads first
+        # The first is a column on the eye's side, across the axis it stands out on.
+        ix, iz = divmod(int(order[0]), Z)
+        dx, dz = eye[0] - X / 2, eye[2] - Z / 2
+        if abs(dx) >= abs(dz):
+            assert ix == (0 if dx < 0 else X - 1), eye
+        else:
+            assert iz == (0 if dz < 0 else Z - 1), eye

@@ -267,6 +267,31 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     return jnp.where(seen, r1 - r0, 0), key, pl.base[ps] - offset + r0
 
 
+def _draw_order(rle, cam: Camera, n: int):
+    """(n,) int32 the flat elements in the order the windows draw them: near columns first.
+
+    :func:`_hidden` catches a pair only behind the writers of earlier windows.
+    So the column heads come first, row by row of columns across the map's
+    axis the eye stands farther out along, from the eye's side; then the
+    tails (stored in column order), from the eye's side in x.  Which element
+    wins a texel does not depend on it.
+    """
+    X, Z = rle.shape[0], rle.shape[2]
+    dx = cam.position[0] - 0.5 * X
+    dz = cam.position[2] - 0.5 * Z
+    heads = []
+    for (xl, _, zl), off in zip(rle.level_shapes, rle.level_offsets):
+        p = jnp.arange(xl * zl, dtype=jnp.int32)
+        # Column c = x * Z_l + z of the level (encode_rle's pointer map).
+        by_x = jnp.where(dx > 0, xl * zl - 1 - p, p)
+        pz = jnp.where(dz > 0, xl * zl - 1 - p, p)
+        by_z = (pz % xl) * zl + pz // xl
+        heads.append(off + jnp.where(jnp.abs(dz) > jnp.abs(dx), by_z, by_x))
+    C = rle.count.shape[0]
+    t = jnp.arange(n - C, dtype=jnp.int32)
+    return jnp.concatenate([*heads, C + jnp.where(dx > 0, n - C - 1 - t, t)])
+
+
 def _hidden(table, n_rows, key, texel0):
     """(Q,) bool: the pair's rows already hold writers in front of it, in every texel.
 
@@ -363,6 +388,7 @@ def scatter_ray_buffer(
     pl = _plane_tables(rle, cam, seg, planes, rows=rows, lod=jnp.asarray(lod_distance, jnp.float32))
     el = _flat_elements(rle, cam, pl)
     N = el.n_pairs.shape[0]
+    draw = _draw_order(rle, cam, N)
     # A window's rows hold at least one whole pair, so every step moves on.
     Q, R = int(window), max(4 * int(window), rows)
     T = int(texels)
@@ -439,7 +465,8 @@ def scatter_ray_buffer(
         # work is the window's, not the scene's.
         has = n_pairs > 0
         live = jnp.arange(N) < jnp.sum(has.astype(jnp.int32))
-        order = jnp.concatenate([jnp.nonzero(has, size=N, fill_value=0)[0].astype(jnp.int32), pad])
+        order = draw[jnp.nonzero(has[draw], size=N, fill_value=0)[0]]
+        order = jnp.concatenate([order, pad])
         n_c = jnp.concatenate([jnp.where(live, n_pairs[order[:N]], 0), pad])
         incl = jnp.cumsum(n_c)
         first_pair = incl - n_c
