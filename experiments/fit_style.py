@@ -22,6 +22,7 @@ Figures: loss curves and the fitted scale curves (PNG).
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import time
@@ -68,10 +69,11 @@ def smooth_random(key, shape, amp):
     return 1.0 + amp * fine
 
 
+@functools.partial(jax.jit, static_argnames=("styles",))
 def skin_all(rig, binding, stacked, style, styles="both"):
-    return jax.jit(jax.vmap(lambda p: skin.skin_exact(rig, p, binding, style, styles=styles)[0]))(
-        stacked
-    )
+    """Every pose's skinned vertices (P, V, 3): one compile per mesh and ``styles``, whatever
+    the style's values."""
+    return jax.vmap(lambda p: skin.skin_exact(rig, p, binding, style, styles=styles)[0])(stacked)
 
 
 def errors(pred, target, radius):

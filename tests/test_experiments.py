@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,9 +20,20 @@ SCRIPTS = sorted(
 )
 # Experiments that exist only for real data (the others fall back to procedural input).
 NEEDS_DATA = {"fox": "rigs/fox.glb"}
-# The runs inherit the suite's code generation level (conftest.py): the smoke test checks that
-# each script runs end to end, not its timings, which `python -m experiments.NAME` measures at
-# XLA's default level.
+# The runs inherit the suite's code generation flags (conftest.py) and compile with XLA:CPU's
+# elemental emitters in place of its default fusion emitters, which take most of their compile
+# time: the smoke test checks that each script runs end to end and writes its tables, not its
+# timings or a result to the last bit (which `python -m experiments.NAME` gives with XLA's
+# defaults).  The tests themselves keep the fusion emitters: some compare two programs' frames
+# bit for bit, and the two emitters round differently.
+SMOKE_FLAGS = "--xla_cpu_use_fusion_emitters=false"
+
+
+def _smoke_env() -> dict:
+    env = dict(os.environ)
+    if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
+        env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {SMOKE_FLAGS}".strip()
+    return env
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
@@ -34,6 +46,7 @@ def test_experiment_quick(name, tmp_path):
         text=True,
         timeout=300,
         cwd=ROOT,
+        env=_smoke_env(),
     )
     assert res.returncode == 0, res.stderr[-3000:]
     md = list(tmp_path.glob("*.md"))

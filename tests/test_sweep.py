@@ -26,7 +26,7 @@ from jaxgfx.sweep import (
 
 SHARDED = textwrap.dedent(
     """
-    import json, sys
+    import functools, json, sys
     import jax, jax.numpy as jnp, numpy as np, trimesh
     from jaxgfx.camera import orbit_cameras
     from jaxgfx.compose import background, composite, to_uint8
@@ -75,12 +75,17 @@ SHARDED = textwrap.dedent(
     def ids_depth(vv):
         out = rasterize(cam0, vv, f, vv)
         return out.tri_id, jnp.where(out.tri_id >= 0, out.depth, 0.0)
-    batched = jax.jit(jax.vmap(ids_depth))
+    # The bit-identity claims (ids of a sharded batch, of a loop, of a face split) are about
+    # the user's programs: those compile with XLA's default code generation.
+    user_jit = functools.partial(  # conftest.py's USER_CODEGEN
+        jax.jit, compiler_options={"xla_backend_optimization_level": 3}
+    )
+    batched = user_jit(jax.vmap(ids_depth))
     mesh4 = jax.make_mesh((4,), ("batch",))
     sharded = batched(jax.device_put(posed, NamedSharding(mesh4, P("batch"))))
     plain = batched(posed)
     on1 = batched(jax.device_put(posed, jax.devices()[1]))
-    single = jax.jit(ids_depth)
+    single = user_jit(ids_depth)
     loop = [single(posed[j]) for j in range(8)]
     loop_ids, loop_depth = (np.stack([np.asarray(x[k]) for x in loop]) for k in (0, 1))
     s_ids, s_depth = (np.asarray(x) for x in sharded)
@@ -118,7 +123,7 @@ SHARDED = textwrap.dedent(
     # rasterize(devices=3): one 24x24 frame's faces dealt over 3 devices (padded faces:
     # 256 % 3 != 0) and its rows shaded 8 per device is bit-identical to one device.
     v, f = m.vertices.astype(np.float32), m.faces.astype(np.int32)
-    ras = jax.jit(rasterize, static_argnames=("devices",))
+    ras = user_jit(rasterize, static_argnames=("devices",))
     cam3 = jax.tree_util.tree_map(
         lambda x: x[0], orbit_cameras([0, 0, 0], 4.0, 1, width=24, height=24))
     split_equal = all(
@@ -144,9 +149,13 @@ SHARDED = textwrap.dedent(
 )
 
 
-def _env(devices=4, **extra):
+def _env(devices=4, *, codegen="test", **extra):
+    """The subprocess's environment: ``devices`` host devices, and the suite's code generation
+    flags (conftest.py: XLA:CPU's lowest optimization level) unless ``codegen="default"``:
+    XLA's defaults, for files compared bit for bit with another process's."""
     env = dict(os.environ)
-    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    flags = env.get("XLA_FLAGS", "") if codegen == "test" else ""
+    env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={devices}".strip()
     env["JAX_PLATFORMS"] = "cpu"
     env.update(extra)
     return env
@@ -254,11 +263,11 @@ def test_sweep_killed_halfway_resumes(tmp_path):
 
 
 def test_cli_sweep_gives_jax_the_host_devices(tmp_path):
-    """Without XLA_FLAGS the CLI sets the host device count before JAX starts (here 2)."""
+    """Without a device count in XLA_FLAGS the CLI sets one before JAX starts (here 2)."""
     mesh_file = tmp_path / "box.ply"
     trimesh.creation.box((1.0, 0.6, 0.8)).export(mesh_file)
     env = _env(1)
-    del env["XLA_FLAGS"]
+    env["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "")  # the suite's code generation flags only
     cmd = [
         sys.executable, "-m", "jaxgfx.cli", "sweep", str(mesh_file),
         "--n", "3", "--chunk", "1", "--size", "12x8", "--devices", "2",
@@ -437,6 +446,8 @@ def _free_port() -> int:
 def _two_processes(out, kill_after=None):
     """Starts processes 0 and 1 of the sweep, process 1 writing into ``out`` + ``_1`` (another
     host's disk); returns their (returncode, stdout, stderr)."""
+    # The processes' chunks are compared bit for bit with a one-process sweep's: XLA's default
+    # code generation, the user's, in both.
     port = str(_free_port())
     procs = []
     for pid in (0, 1):
@@ -444,7 +455,7 @@ def _two_processes(out, kill_after=None):
         procs.append(
             subprocess.Popen(
                 [sys.executable, "-c", MULTIPROCESS, str(pid), port, f"{out}{'_1' * pid}", kill],
-                env=_env(1),
+                env=_env(1, codegen="default"),
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,
@@ -473,7 +484,7 @@ def test_two_processes_equal_one_and_resume_after_a_kill(tmp_path):
     other is stopped by the coordination service, and rerunning both completes the sweep."""
     ref = subprocess.run(
         [sys.executable, "-c", MULTIPROCESS, "-1", "0", str(tmp_path / "one"), "0"],
-        env=_env(2),
+        env=_env(2, codegen="default"),
         capture_output=True,
         text=True,
         timeout=300,
