@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -29,10 +30,17 @@ NEEDS_DATA = {"fox": "rigs/fox.glb"}
 SMOKE_FLAGS = "--xla_cpu_use_fusion_emitters=false"
 
 
+@functools.cache
 def _smoke_env() -> dict:
     env = dict(os.environ)
     if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
         env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {SMOKE_FLAGS}".strip()
+        # XLA aborts on a flag it does not know: a jaxlib without it runs the defaults.
+        probe = subprocess.run(
+            [sys.executable, "-c", "import jax; jax.devices()"], env=env, capture_output=True
+        )
+        if probe.returncode != 0:
+            env["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "")
     return env
 
 

@@ -79,6 +79,7 @@ __all__ = [
     "check_scatter_scene",
     "scatter_limits",
     "default_window",
+    "rows_per_pair",
     "default_texels",
 ]
 
@@ -105,18 +106,31 @@ def default_texels(width: int, height: int, num_planes: int, rows: int) -> int:
 def default_window(width: int, height: int, *, accelerator: bool = False, frames: int = 1) -> int:
     """Pairs per loop step, a power of two of at least 2^14.
 
-    On the CPU a quarter of a frame's pixels, so that a step's tables stay in
-    cache.  On an accelerator a step is a
-    kernel launch or more and a host sync, so a window is as wide as the
-    device fills: four times a frame's pixels (2^20 pairs at 512x384, one or two
-    steps for a frame), shared by the ``frames`` of a vectorized batch, and at
-    most 2^22 (a step's row arrays, four windows of int32, stay at 64 MB each:
-    a 4K frame takes a few steps instead).
+    On the CPU half a frame's pixels, its rows drawn a window at a time
+    (:func:`rows_per_pair`).  On an accelerator a step is a kernel launch or
+    more and a host sync, so a window is as wide as the device fills: four times
+    a frame's pixels (2^20 pairs at 512x384, one or two steps for a frame),
+    shared by the ``frames`` of a vectorized batch, and at most 2^22 (a step's
+    row arrays, four windows of int32, stay at 64 MB each: a 4K frame takes a
+    few steps instead).
     """
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames!r}")
-    want = min(4 * width * height // frames, 1 << 22) if accelerator else width * height // 4
+    want = min(4 * width * height // frames, 1 << 22) if accelerator else width * height // 2
     return 1 << max(14, int(np.ceil(np.log2(max(want, 1)))))
+
+
+def rows_per_pair(*, accelerator: bool = False) -> int:
+    """A window's rows drawn per loop step, in windows: 1 on the CPU, 4 elsewhere.
+
+    A window's rows are drawn in steps of ``rows_per_pair * window`` rows,
+    as many as its pairs have (a far view's pairs cover one or two rows, a
+    near one's ten).  A step costs its whole width whatever it holds, so on the
+    CPU the steps are a window wide and their count follows the rows; on an
+    accelerator, where steps are launches, four windows wide: one step for most
+    windows.
+    """
+    return 1 if not accelerator else 4
 
 
 def _running_max(x):
@@ -355,6 +369,7 @@ def scatter_ray_buffer(
     rows: int,
     lod_distance,
     window: int,
+    rows_per_pair: int = 1,
     texels: int,
     neighbors: int = 1,
 ):
@@ -372,7 +387,8 @@ def scatter_ray_buffer(
         planes: (P,) int32 plane indices, ``arange(P)``.
         rows: static ray-buffer column length.
         lod_distance: () horizontal distance where mip level 1 starts.
-        window: static pairs per loop step (rows per step: ``max(4 window, rows)``).
+        window: static pairs per loop step.
+        rows_per_pair: static rows per step, in windows (:func:`rows_per_pair`).
         texels: static size of the texel table (:func:`default_texels`), at least
             ``2 rows``: a pass draws planes whose rows start in its first
             ``texels - rows``.
@@ -389,8 +405,7 @@ def scatter_ray_buffer(
     el = _flat_elements(rle, cam, pl)
     N = el.n_pairs.shape[0]
     draw = _draw_order(rle, cam, N)
-    # A window's rows hold at least one whole pair, so every step moves on.
-    Q, R = int(window), max(4 * int(window), rows)
+    Q, R = int(window), int(rows_per_pair) * int(window)
     T = int(texels)
     span = T - rows  # a pass's planes start in its first ``span`` texels
     slot_q = jnp.arange(Q, dtype=jnp.int32)
@@ -416,31 +431,45 @@ def scatter_ray_buffer(
             ok = s.start + slot_q < total
             n_rows, key, texel0 = _pair_rows(rle, cam, pl, el, e, k, ok, planes_g[c], p_lo, offset)
             n_rows = jnp.where(_hidden(s.key, n_rows, key, texel0), 0, n_rows)
-            # As many whole pairs as the window's rows hold.
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
             r_incl = jnp.cumsum(n_rows)
-            fits = r_incl <= R
-            taken = jnp.sum(fits.astype(jnp.int32))
             r_first = r_incl - n_rows
-            rmark = (
-                jnp.full((R,), -1, jnp.int32)
-                .at[jnp.where(fits & (n_rows > 0), r_first, R)]
-                .max(slot_q, mode="drop")
+            n_win = r_incl[-1]
+
+            # The window's rows, R at a time: row ``rs + i``'s pair by a running
+            # max of marks (the first holds the pair that row ``rs`` is in).
+            def rows_step(c):
+                rs, table, element, steps = c
+                rel = r_first - rs
+                inside = (n_rows > 0) & (rel >= 0) & (rel < R)
+                first = jnp.searchsorted(r_incl, rs, side="right").astype(jnp.int32)
+                rmark = (
+                    jnp.full((R,), -1, jnp.int32)
+                    .at[jnp.where(inside, rel, R)]
+                    .max(slot_q, mode="drop")
+                    .at[0]
+                    .max(first)
+                )
+                q = jnp.clip(_running_max(rmark), 0, Q - 1)
+                row = rs + slot_r
+                live = row < n_win
+                texel = jnp.where(live, texel0[q] + row - r_first[q], T)
+                k_r = key[q]
+                texel, k_r = jax.lax.optimization_barrier((texel, k_r))
+                table = table.at[texel].min(k_r, mode="drop")
+                won = live & (table[jnp.minimum(texel, T - 1)] == k_r)
+                element = element.at[jnp.where(won, texel, T)].set(e[q], mode="drop")
+                return rs + R, table, element, steps + 1
+
+            _, table, element, steps = jax.lax.while_loop(
+                lambda c: c[0] < n_win, rows_step, (jnp.int32(0), s.key, s.element, s.steps + 1)
             )
-            q = jnp.clip(_running_max(rmark), 0, Q - 1)
-            live = slot_r < jnp.where(taken > 0, r_incl[jnp.maximum(taken - 1, 0)], 0)
-            texel = jnp.where(live, texel0[q] + slot_r - r_first[q], T)
-            k_r = key[q]
-            texel, k_r = jax.lax.optimization_barrier((texel, k_r))
-            table = s.key.at[texel].min(k_r, mode="drop")
-            won = live & (table[jnp.minimum(texel, T - 1)] == k_r)
-            element = s.element.at[jnp.where(won, texel, T)].set(e[q], mode="drop")
             return _ScatterLoop(
-                start=s.start + taken,
+                start=s.start + Q,
                 key=table,
                 element=element,
-                rows=s.rows + jnp.sum(jnp.where(fits, n_rows, 0)),
-                steps=s.steps + 1,
+                rows=s.rows + n_win,
+                steps=steps,
             )
 
         return body
@@ -509,9 +538,10 @@ def scatter_frame(
 
     ``settings``: the :class:`~jaxgfx.raycast.RenderSettings` (its ``window``,
     ``texels`` and ``neighbors``; None sizes take :func:`default_window` and
-    :func:`default_texels`).  Without a ``window`` the CPU's and the
-    accelerators' default windows (``frames``: the frames of the vectorized batch
-    this frame is one of) are chosen when the program is lowered.
+    :func:`default_texels`).  The CPU's and the accelerators' row steps
+    (:func:`rows_per_pair`) and, without a ``window``, default windows
+    (``frames``: the frames of the vectorized batch this frame is one of) are
+    chosen when the program is lowered.
 
     Returns:
         ``((color, depth, entered), stats (4,), steps (), passes ())``:
@@ -522,7 +552,7 @@ def scatter_frame(
     texels = settings.texels or default_texels(cam.width, cam.height, P, rows)
     check_scatter_scene(rle, P, texels, rows)
 
-    def draw(window, rle, cam, seg, planes, lod_distance):
+    def draw(sizes, rle, cam, seg, planes, lod_distance):
         return scatter_ray_buffer(
             rle,
             cam,
@@ -530,22 +560,25 @@ def scatter_frame(
             planes,
             rows=rows,
             lod_distance=lod_distance,
-            window=window,
+            window=sizes[0],
+            rows_per_pair=sizes[1],
             texels=texels,
             neighbors=settings.neighbors,
         )
 
-    # Only the traversal depends on the window; the warp is traced once.
+    # Only the traversal depends on the window and its row steps; the warp is
+    # traced once.
     args = (rle, cam, seg, planes, lod_distance)
-    on_cpu = default_window(cam.width, cam.height)
-    elsewhere = default_window(cam.width, cam.height, accelerator=True, frames=frames)
-    if settings.window is not None or on_cpu == elsewhere:
-        drawn = draw(settings.window or on_cpu, *args)
-    else:
-        drawn = jax.lax.platform_dependent(
-            *args,
-            cpu=functools.partial(draw, on_cpu),
-            default=functools.partial(draw, elsewhere),
-        )
+    window = settings.window
+    on_cpu = (window or default_window(cam.width, cam.height), rows_per_pair())
+    elsewhere = (
+        window or default_window(cam.width, cam.height, accelerator=True, frames=frames),
+        rows_per_pair(accelerator=True),
+    )
+    drawn = jax.lax.platform_dependent(
+        *args,
+        cpu=functools.partial(draw, on_cpu),
+        default=functools.partial(draw, elsewhere),
+    )
     buffer, elements, stats, steps, passes = drawn
     return warp_texels(rle, cam, seg, buffer, elements), stats, steps, passes
