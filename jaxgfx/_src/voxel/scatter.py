@@ -325,14 +325,26 @@ def _hidden(table, n_rows, key, texel0):
     return (b - a <= 1) & (jnp.maximum(blocks[a], blocks[b]) < key)
 
 
+class _Window(NamedTuple):
+    """A window's pairs (:func:`scatter_ray_buffer`); (window,) int32 arrays."""
+
+    element: jax.Array
+    n_rows: jax.Array  # rows it writes (0: unseen or hidden)
+    key: jax.Array  # walk-order key
+    texel0: jax.Array  # its first texel
+    r_incl: jax.Array  # inclusive prefix of n_rows
+
+
 class _ScatterLoop(NamedTuple):
-    """State of :func:`scatter_ray_buffer`'s loop over pair windows."""
+    """State of :func:`scatter_ray_buffer`'s loop: a step draws rows of the current window."""
 
     start: jax.Array  # () int32, first pair of the next window
     key: jax.Array  # (texels,) int32 walk-order key of each texel's writer so far
     element: jax.Array  # (texels,) int32 its element (-1: none)
     rows: jax.Array  # () int32 row updates so far
     steps: jax.Array  # () int32
+    window: _Window  # the current window
+    drawn: jax.Array  # () int32 its rows drawn
 
 
 class _Passes(NamedTuple):
@@ -413,9 +425,9 @@ def scatter_ray_buffer(
     pad = jnp.zeros((Q,), jnp.int32)
 
     def window_step(p_lo, offset, order, first_pair, incl, total, planes_g):
-        def body(s: _ScatterLoop) -> _ScatterLoop:
-            # The window's pairs: element of each slot by a running max of marks
-            # over the window's elements (the first holds pair ``start``).
+        def pairs(s: _ScatterLoop) -> _Window:
+            """The next window's pairs: element of each slot by a running max of
+            marks over the window's elements (the first holds pair ``start``)."""
             head = jnp.searchsorted(incl, s.start, side="right").astype(jnp.int32)
             rel = jax.lax.dynamic_slice(first_pair, (head,), (Q,)) - s.start
             mark = (
@@ -432,44 +444,45 @@ def scatter_ray_buffer(
             n_rows, key, texel0 = _pair_rows(rle, cam, pl, el, e, k, ok, planes_g[c], p_lo, offset)
             n_rows = jnp.where(_hidden(s.key, n_rows, key, texel0), 0, n_rows)
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
-            r_incl = jnp.cumsum(n_rows)
-            r_first = r_incl - n_rows
-            n_win = r_incl[-1]
+            return _Window(e, n_rows, key, texel0, jnp.cumsum(n_rows))
 
-            # The window's rows, R at a time: row ``rs + i``'s pair by a running
-            # max of marks (the first holds the pair that row ``rs`` is in).
-            def rows_step(c):
-                rs, table, element, steps = c
-                rel = r_first - rs
-                inside = (n_rows > 0) & (rel >= 0) & (rel < R)
-                first = jnp.searchsorted(r_incl, rs, side="right").astype(jnp.int32)
-                rmark = (
-                    jnp.full((R,), -1, jnp.int32)
-                    .at[jnp.where(inside, rel, R)]
-                    .max(slot_q, mode="drop")
-                    .at[0]
-                    .max(first)
-                )
-                q = jnp.clip(_running_max(rmark), 0, Q - 1)
-                row = rs + slot_r
-                live = row < n_win
-                texel = jnp.where(live, texel0[q] + row - r_first[q], T)
-                k_r = key[q]
-                texel, k_r = jax.lax.optimization_barrier((texel, k_r))
-                table = table.at[texel].min(k_r, mode="drop")
-                won = live & (table[jnp.minimum(texel, T - 1)] == k_r)
-                element = element.at[jnp.where(won, texel, T)].set(e[q], mode="drop")
-                return rs + R, table, element, steps + 1
-
-            _, table, element, steps = jax.lax.while_loop(
-                lambda c: c[0] < n_win, rows_step, (jnp.int32(0), s.key, s.element, s.steps + 1)
+        def body(s: _ScatterLoop) -> _ScatterLoop:
+            # One loop, R rows a step: a window's pairs are taken when the rows
+            # of the one before are drawn (a nested loop would step a vmapped
+            # batch by its frames' largest row count in every window).
+            new = s.drawn >= s.window.r_incl[-1]
+            w = jax.lax.cond(new, pairs, lambda s: s.window, s)
+            rs = jnp.where(new, 0, s.drawn)
+            # Row ``rs + i``'s pair by a running max of marks (the first holds
+            # the pair that row ``rs`` is in).
+            r_first = w.r_incl - w.n_rows
+            rel = r_first - rs
+            inside = (w.n_rows > 0) & (rel >= 0) & (rel < R)
+            first = jnp.searchsorted(w.r_incl, rs, side="right").astype(jnp.int32)
+            rmark = (
+                jnp.full((R,), -1, jnp.int32)
+                .at[jnp.where(inside, rel, R)]
+                .max(slot_q, mode="drop")
+                .at[0]
+                .max(first)
             )
+            q = jnp.clip(_running_max(rmark), 0, Q - 1)
+            row = rs + slot_r
+            live = row < w.r_incl[-1]
+            texel = jnp.where(live, w.texel0[q] + row - r_first[q], T)
+            k_r = w.key[q]
+            texel, k_r = jax.lax.optimization_barrier((texel, k_r))
+            table = s.key.at[texel].min(k_r, mode="drop")
+            won = live & (table[jnp.minimum(texel, T - 1)] == k_r)
+            element = s.element.at[jnp.where(won, texel, T)].set(w.element[q], mode="drop")
             return _ScatterLoop(
-                start=s.start + Q,
+                start=jnp.where(new, s.start + Q, s.start),
                 key=table,
                 element=element,
-                rows=s.rows + n_win,
-                steps=steps,
+                rows=s.rows + jnp.where(new, w.r_incl[-1], 0),
+                steps=s.steps + 1,
+                window=w,
+                drawn=rs + R,
             )
 
         return body
@@ -507,8 +520,12 @@ def scatter_ray_buffer(
             element=jnp.full((T,), -1, jnp.int32),
             rows=jnp.int32(0),
             steps=jnp.int32(0),
+            window=_Window(*(jnp.zeros((Q,), jnp.int32) for _ in range(5))),
+            drawn=jnp.int32(0),
         )
-        s = jax.lax.while_loop(lambda s: s.start < total, body, s0)
+        s = jax.lax.while_loop(
+            lambda s: (s.start < total) | (s.drawn < s.window.r_incl[-1]), body, s0
+        )
         drawn = jnp.sum((s.element >= 0).astype(jnp.int32))
         return _Passes(
             passes=ps.passes + 1,
