@@ -754,7 +754,7 @@ def test_window_coverage_test_leaves_out_only_hidden_pairs():
 
 
 def test_draw_order_takes_every_element_once_near_columns_first():
-    from jaxgfx._src.voxel.scatter import _draw_order
+    from jaxgfx._src.voxel.scatter_planes import _draw_order
 
     rle = V.as_jax(V.encode_rle(_random_voxels(np.random.default_rng(4), (6, 9, 5), 60), levels=2))
     C = rle.count.shape[0]

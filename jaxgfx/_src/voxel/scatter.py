@@ -24,10 +24,10 @@ buffer comes out of a different loop order, which needs no dependent steps:
    rows keeps each texel's first writer, as the rasterizer's z-buffer keeps
    the nearest face; the pairs whose key won a texel write their element there.
 
-Steps 3-4 run over the pairs in windows of a fixed size (``window`` pairs, at
-most ``max(4 window, rows)`` rows) into a table of each plane's on-screen rows
-back to back, so memory is bounded and the frame takes one loop step per
-window (1 to 15 over ``rle_bench``'s views), each as wide as the window.  A
+Steps 3-4 run over the pairs in windows of a fixed size (``window`` pairs),
+their rows drawn ``rows_per_pair`` windows a loop step, into a table of each
+plane's on-screen rows back to back, so memory is bounded and a frame takes a
+few tens of loop steps, each as wide as a window.  A
 frame whose planes have more rows than the table holds draws runs of sorted
 planes in turn (passes), each projecting only its planes' pairs.
 Elements are the same as the per-plane walk's, and every element in a crossed
@@ -60,6 +60,7 @@ from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.scatter_planes import (
     _column_cells,
     _column_planes,
+    _draw_order,
     _plane_tables,
     _Planes,
 )
@@ -279,31 +280,6 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     ordinal = jnp.where(px, ix, -ix) + jnp.where(pz, iz, -iz) + (X + Z)
     key = (((lev << o_bits) | ordinal) << 7) | (heights >> (2 * _H_BITS))
     return jnp.where(seen, r1 - r0, 0), key, pl.base[ps] - offset + r0
-
-
-def _draw_order(rle, cam: Camera, n: int):
-    """(n,) int32 the flat elements in the order the windows draw them: near columns first.
-
-    :func:`_hidden` catches a pair only behind the writers of earlier windows.
-    So the column heads come first, row by row of columns across the map's
-    axis the eye stands farther out along, from the eye's side; then the
-    tails (stored in column order), from the eye's side in x.  Which element
-    wins a texel does not depend on it.
-    """
-    X, Z = rle.shape[0], rle.shape[2]
-    dx = cam.position[0] - 0.5 * X
-    dz = cam.position[2] - 0.5 * Z
-    heads = []
-    for (xl, _, zl), off in zip(rle.level_shapes, rle.level_offsets):
-        p = jnp.arange(xl * zl, dtype=jnp.int32)
-        # Column c = x * Z_l + z of the level (encode_rle's pointer map).
-        by_x = jnp.where(dx > 0, xl * zl - 1 - p, p)
-        pz = jnp.where(dz > 0, xl * zl - 1 - p, p)
-        by_z = (pz % xl) * zl + pz // xl
-        heads.append(off + jnp.where(jnp.abs(dz) > jnp.abs(dx), by_z, by_x))
-    C = rle.count.shape[0]
-    t = jnp.arange(n - C, dtype=jnp.int32)
-    return jnp.concatenate([*heads, C + jnp.where(dx > 0, n - C - 1 - t, t)])
 
 
 def _hidden(table, n_rows, key, texel0):

@@ -5,6 +5,7 @@ a half-line from the eye in its x-z direction.  Sorted by that direction
 (:func:`_plane_tables`, the one-cell walk's plane constants, 4.5.3), the planes
 that cross a map cell are one run of them, or two across the back direction
 (:func:`_column_planes`): exactly the cells each plane's 2-D DDA visits (4.5.4).
+The columns are drawn near ones first (:func:`_draw_order`).
 """
 
 from __future__ import annotations
@@ -192,3 +193,28 @@ def _column_planes(rle, cam: Camera, pl: _Planes):
     hi1 = jnp.where(eye, pl.n_live, jnp.minimum(hi1, pl.n_live))
     n2 = jnp.where(eye, 0, jnp.minimum(hi2, pl.n_live))
     return lo1, jnp.where(reach, jnp.maximum(hi1 - lo1, 0), 0), jnp.where(reach, n2, 0)
+
+
+def _draw_order(rle, cam: Camera, n: int):
+    """(n,) int32 the flat elements in the order the windows draw them: near columns first.
+
+    :func:`~.scatter._hidden` catches a pair only behind the writers of earlier windows.
+    So the column heads come first, row by row of columns across the map's
+    axis the eye stands farther out along, from the eye's side; then the
+    tails (stored in column order), from the eye's side in x.  Which element
+    wins a texel does not depend on it.
+    """
+    X, Z = rle.shape[0], rle.shape[2]
+    dx = cam.position[0] - 0.5 * X
+    dz = cam.position[2] - 0.5 * Z
+    heads = []
+    for (xl, _, zl), off in zip(rle.level_shapes, rle.level_offsets):
+        p = jnp.arange(xl * zl, dtype=jnp.int32)
+        # Column c = x * Z_l + z of the level (encode_rle's pointer map).
+        by_x = jnp.where(dx > 0, xl * zl - 1 - p, p)
+        pz = jnp.where(dz > 0, xl * zl - 1 - p, p)
+        by_z = (pz % xl) * zl + pz // xl
+        heads.append(off + jnp.where(jnp.abs(dz) > jnp.abs(dx), by_z, by_x))
+    C = rle.count.shape[0]
+    t = jnp.arange(n - C, dtype=jnp.int32)
+    return jnp.concatenate([*heads, C + jnp.where(dx > 0, n - C - 1 - t, t)])
