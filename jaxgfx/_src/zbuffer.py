@@ -249,11 +249,15 @@ def _chunk_fragments(cam, setup, starts, offsets, total, chunk0, chunk, block, t
 
     inside = live[None] & (px <= irow[2][None]) & (py <= irow[3][None])
     for e in range(3):
-        sg = col(_SG + e)
-        v = sg * (col(_DX + e) * (cy - col(_AY + e)) - col(_DY + e) * (cx - col(_AX + e)))
-        # Top-left rule: a centre exactly on an edge belongs to the triangle
-        # on the edge's canonical "+" side only.
-        inside = inside & ((v > 0) | ((v == 0) & (sg > 0)))
+        # The edge function's two products, compared rather than subtracted: a
+        # compiler that contracts ``a - b`` into a fused multiply-add (XLA:CPU's
+        # emitters differ here, GPUs do it by default) rounds the two triangles of
+        # a shared edge differently, while each product alone is one correctly
+        # rounded multiply, the same bits for both.  Top-left rule: a centre
+        # exactly on an edge belongs to the triangle on its canonical "+" side.
+        a = col(_DX + e) * (cy - col(_AY + e))
+        b = col(_DY + e) * (cx - col(_AX + e))
+        inside = inside & jnp.where(col(_SG + e) > 0, a >= b, b > a)
     w = col(_W0) + col(_GX) * (cx - col(_S0X)) + col(_GY) * (cy - col(_S0Y))
     ok = inside & (w <= col(_WNEAR)) & (w >= col(_WFAR))
     pix = py * cam.width + px
