@@ -231,7 +231,12 @@ def screen_segments(
             for b in (bmin, bmax):
                 da = va - a * w
                 db = vb - b * w
-                da = jnp.where(jnp.abs(da) < 1e-9, 1e-9 * sw * side, da)
+                # A corner on vp's own line (``a`` is vp_a, clipped: vp inside the
+                # segment's range) looks along the border: its side is the segment's,
+                # not the sign of ``va - a w``'s rounding residue, which changes
+                # with the compiler's contractions and would swing u across the wedge.
+                flat = (a == vp_a) | (jnp.abs(da) < 1e-9)
+                da = jnp.where(flat, 1e-9 * sw * side, da)
                 u = b + (a_ref - a) * db / da
                 us_s.append(jnp.clip(u, vp_b - half, vp_b + half))
         us = jnp.stack(us_s)
