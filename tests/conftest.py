@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -25,20 +27,34 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-# Compiling is most of this suite's time, and LLVM's optimizer about a fifth of compiling, so
-# tests (and the CLI and experiment runs they start) compile at XLA:CPU's lowest backend
-# optimization level: what they check (values, shapes, errors, gradients) does not depend on
-# it.  A claim that two programs give bit-identical results is a claim about the user's code
-# generation: such tests compile both programs at XLA's default level (``USER_CODEGEN``; the
-# sweep tests' subprocesses set their own flags).  JAXGFX_TEST_CODEGEN=default runs every
-# test at the default level.
-# XLA reads its flags when the backend starts (the first array), after these imports.
-if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
-    os.environ["XLA_FLAGS"] = (
-        os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
-    ).strip()
-USER_CODEGEN = {"xla_backend_optimization_level": 3}
+# Compiling is most of this suite's time, so tests (and the CLI and experiment runs they
+# start: the variables reach subprocesses) compile at XLA:CPU's lowest backend optimization
+# level and with its elemental emitters in place of the default fusion emitters, which
+# together take about half of the compile time: what the tests check (values, shapes, errors,
+# gradients) does not depend on either.  A claim that two programs give bit-identical results
+# is a claim about the user's code generation (the two emitters round differently): such tests
+# compile both programs with XLA's defaults (``USER_CODEGEN``; the sweep tests' subprocesses
+# set their own flags).  JAXGFX_TEST_CODEGEN=default runs every test with the defaults.
+# XLA reads its flags when the backend starts (the first array), after these imports; it
+# aborts on a flag it does not know, so a jaxlib without the emitter flag keeps its default.
+_TEST_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+USER_CODEGEN: dict = {"xla_backend_optimization_level": 3}
 """``jax.jit(..., compiler_options=USER_CODEGEN)``: XLA:CPU's default code generation."""
+if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
+    _flags = os.environ.get("XLA_FLAGS", "")
+    if _TEST_FLAGS[0] not in _flags:
+        _flags = f"{_flags} {_TEST_FLAGS[0]}".strip()
+    if _TEST_FLAGS[1] not in _flags:  # the controller: xdist's workers inherit its variables
+        _with = f"{_flags} {_TEST_FLAGS[1]}"
+        _probe = subprocess.run(
+            [sys.executable, "-c", "import jax; jax.devices()"],
+            env={**os.environ, "XLA_FLAGS": _with},
+            capture_output=True,
+        )
+        _flags = _with if _probe.returncode == 0 else _flags
+    os.environ["XLA_FLAGS"] = _flags
+    if _TEST_FLAGS[1] in _flags:
+        USER_CODEGEN["xla_cpu_use_fusion_emitters"] = True
 
 DATA = Path(
     os.environ.get("JAXGFX_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
@@ -112,6 +128,12 @@ def raster_jit():
     from jaxgfx.raster import rasterize
 
     return jax.jit(rasterize, static_argnames=("cull_backfaces", "block", "chunk"))
+
+
+@pytest.fixture(scope="package")
+def user_codegen() -> dict:
+    """``USER_CODEGEN``, for programs compiled in a subprocess."""
+    return dict(USER_CODEGEN)
 
 
 @pytest.fixture(scope="package")

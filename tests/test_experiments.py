@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import functools
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -21,27 +19,9 @@ SCRIPTS = sorted(
 )
 # Experiments that exist only for real data (the others fall back to procedural input).
 NEEDS_DATA = {"fox": "rigs/fox.glb"}
-# The runs inherit the suite's code generation flags (conftest.py) and compile with XLA:CPU's
-# elemental emitters in place of its default fusion emitters, which take most of their compile
-# time: the smoke test checks that each script runs end to end and writes its tables, not its
-# timings or a result to the last bit (which `python -m experiments.NAME` gives with XLA's
-# defaults).  The tests themselves keep the fusion emitters: some compare two programs' frames
-# bit for bit, and the two emitters round differently.
-SMOKE_FLAGS = "--xla_cpu_use_fusion_emitters=false"
-
-
-@functools.cache
-def _smoke_env() -> dict:
-    env = dict(os.environ)
-    if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
-        env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {SMOKE_FLAGS}".strip()
-        # XLA aborts on a flag it does not know: a jaxlib without it runs the defaults.
-        probe = subprocess.run(
-            [sys.executable, "-c", "import jax; jax.devices()"], env=env, capture_output=True
-        )
-        if probe.returncode != 0:
-            env["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "")
-    return env
+# The runs inherit the suite's code generation flags (conftest.py): the smoke test checks that
+# each script runs end to end and writes its tables, not its timings or a result to the last
+# bit (which `python -m experiments.NAME` gives with XLA's defaults).
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
@@ -54,7 +34,6 @@ def test_experiment_quick(name, tmp_path):
         text=True,
         timeout=300,
         cwd=ROOT,
-        env=_smoke_env(),
     )
     assert res.returncode == 0, res.stderr[-3000:]
     md = list(tmp_path.glob("*.md"))

@@ -293,14 +293,14 @@ def test_stacked_frames_visibility_matches_single():
         np.testing.assert_array_equal(inv2.reshape(2, -1)[k], inv1)
 
 
-def test_face_batches_give_the_same_visibility():
+def test_face_batches_give_the_same_visibility(user_jit):
     # visible_faces(tri_batch=7): 80 faces set up and z-buffered 7 at a time (last batch
     # padded) -> the same ids and bit-identical 1/z as one batch; one camera's near plane
     # cuts the mesh (clipped second triangles keep their source face), with and without
     # back-face culling.
     from jaxgfx._src.zbuffer import NO_TRI, visible_faces
 
-    run = jax.jit(visible_faces, static_argnames=("cull_backfaces", "tri_batch"))
+    run = user_jit(visible_faces, static_argnames=("cull_backfaces", "tri_batch"))
     mesh = trimesh.creation.icosphere(subdivisions=1)
     v = jnp.asarray(mesh.vertices, jnp.float32)
     f = jnp.asarray(mesh.faces, jnp.int32)

@@ -51,16 +51,6 @@ def _check_placements(demo):
         assert gap.max() >= -GROUND_TOL, (p.name, "sunk into the ground", gap.max())
 
 
-def test_demo_objects_stand_on_procedural_ground(tmp_path):
-    # The demo command's default scene (64x48, seed 0, no data), as the CLI test below renders it
-    demo = build_demo(64, 48, key=jax.random.key(0), data=tmp_path)  # an empty folder: no data
-    assert "procedural" in demo.description
-    assert demo.credits == ()  # nothing of the shared data was drawn: nothing to credit
-    names = {p.name for p in demo.placements}
-    assert {"tree", "character"} <= names
-    _check_placements(demo)
-
-
 def test_demo_objects_stand_on_the_dem(data_dir):
     demo = build_demo(32, 24, key=jax.random.key(0), data=data_dir)
     assert "St Helens" in demo.description and "fox" in demo.description
@@ -77,9 +67,26 @@ def test_find_data_rejects_a_file(tmp_path):
         find_data(f)
 
 
-def test_demo_cli_writes_images_gif_and_pass_shares(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--size", "64x48", "--out", str(out), "--frames", "2"]) == 0
+def test_demo_cli_writes_images_gif_and_pass_shares(tmp_path, capsys, monkeypatch):
+    # The demo command's procedural scene (64x48, seed 0, an empty data folder); the scene
+    # it built is checked too: its objects stand on the procedural ground.
+    import jaxgfx.showcase
+
+    built = []
+    monkeypatch.setattr(
+        jaxgfx.showcase,
+        "build_demo",
+        lambda *a, **k: built.append(build_demo(*a, **k)) or built[-1],
+    )
+    out, empty = tmp_path / "demo", tmp_path / "no-data"
+    empty.mkdir()
+    argv = ["demo", "--size", "64x48", "--out", str(out), "--frames", "2", "--data", str(empty)]
+    assert main(argv) == 0
+    (demo,) = built
+    assert "procedural" in demo.description
+    assert demo.credits == ()  # nothing of the shared data was drawn: nothing to credit
+    assert {"tree", "character"} <= {p.name for p in demo.placements}
+    _check_placements(demo)
     color = iio.imread(out / "color.png")
     depth = iio.imread(out / "depth.png")
     assert color.shape == (48, 64, 3) and depth.shape == (48, 64)

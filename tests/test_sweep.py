@@ -77,9 +77,7 @@ SHARDED = textwrap.dedent(
         return out.tri_id, jnp.where(out.tri_id >= 0, out.depth, 0.0)
     # The bit-identity claims (ids of a sharded batch, of a loop, of a face split) are about
     # the user's programs: those compile with XLA's default code generation.
-    user_jit = functools.partial(  # conftest.py's USER_CODEGEN
-        jax.jit, compiler_options={"xla_backend_optimization_level": 3}
-    )
+    user_jit = functools.partial(jax.jit, compiler_options=json.loads(sys.argv[2]))
     batched = user_jit(jax.vmap(ids_depth))
     mesh4 = jax.make_mesh((4,), ("batch",))
     sharded = batched(jax.device_put(posed, NamedSharding(mesh4, P("batch"))))
@@ -161,9 +159,9 @@ def _env(devices=4, *, codegen="test", **extra):
     return env
 
 
-def test_sharded_sweep_equals_unsharded(tmp_path):
+def test_sharded_sweep_equals_unsharded(tmp_path, user_codegen):
     res = subprocess.run(
-        [sys.executable, "-c", SHARDED, str(tmp_path)],
+        [sys.executable, "-c", SHARDED, str(tmp_path), json.dumps(user_codegen)],
         env=_env(),
         capture_output=True,
         text=True,
@@ -173,11 +171,11 @@ def test_sharded_sweep_equals_unsharded(tmp_path):
     r = json.loads(res.stdout.strip().splitlines()[-1])
     assert r["n"] == 6
     assert r["s4"]["chunks"] == 2 and r["s1"]["chunks"] == 2
-    # Same images: identical 8-bit pictures and depth; float colour to rounding
-    # (each device compiles its own batch size, so XLA may reassociate).
+    # Same images: identical 8-bit pictures and coverage; depth and float colour to
+    # rounding (each device compiles its own batch size, so XLA may reassociate).
     assert r["png_equal"] and r["coverage_equal"]
     assert r["split_equal"]
-    assert r["depth_rel_diff"] <= 1e-6
+    assert r["depth_rel_diff"] <= 4e-6  # a few float32 ulps
     assert r["color_max_diff"] <= 1e-5
     assert r["direct_diff"] <= 1e-5
     # sharded_vmap over 4 devices (batch 6, padded) equals a loop over the characters
