@@ -19,8 +19,9 @@ Design for large meshes (the thesis's terrain has ~700 k triangles at
   the winning triangle id (min id among exact ties), so memory is bounded by
   the chunk size, not by the mesh, and no step touches the whole frame.
 * Coverage uses edge functions evaluated in a canonical edge direction, so
-  the two triangles sharing an edge compute bit-identical values with
-  opposite signs; the top-left fill rule breaks exact ties.  Shared edges are
+  the two triangles sharing an edge compute the same two products, compared
+  (not subtracted: no contraction rounds them apart) with opposite senses;
+  the top-left fill rule breaks exact ties.  Shared edges are
   therefore drawn exactly once, with no holes and no double coverage.
 
 Everything is written for one camera; batch cameras (or posed vertices) with
