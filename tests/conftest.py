@@ -37,15 +37,16 @@ import pytest  # noqa: E402
 # set their own flags).  JAXGFX_TEST_CODEGEN=default runs every test with the defaults.
 # XLA reads its flags when the backend starts (the first array), after these imports; it
 # aborts on a flag it does not know, so a jaxlib without the emitter flag keeps its default.
-_TEST_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+_LEVEL_0 = "--xla_backend_optimization_level=0"
+_ELEMENTAL = "--xla_cpu_use_fusion_emitters=false"
 USER_CODEGEN: dict = {"xla_backend_optimization_level": 3}
 """``jax.jit(..., compiler_options=USER_CODEGEN)``: XLA:CPU's default code generation."""
 if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
     _flags = os.environ.get("XLA_FLAGS", "")
-    if _TEST_FLAGS[0] not in _flags:
-        _flags = f"{_flags} {_TEST_FLAGS[0]}".strip()
-    if _TEST_FLAGS[1] not in _flags:  # the controller: xdist's workers inherit its variables
-        _with = f"{_flags} {_TEST_FLAGS[1]}"
+    if _LEVEL_0 not in _flags:
+        _flags = f"{_flags} {_LEVEL_0}".strip()
+    if _ELEMENTAL not in _flags:  # the controller: xdist's workers inherit its variables
+        _with = f"{_flags} {_ELEMENTAL}"
         _probe = subprocess.run(
             [sys.executable, "-c", "import jax; jax.devices()"],
             env={**os.environ, "XLA_FLAGS": _with},
@@ -53,7 +54,7 @@ if os.environ.get("JAXGFX_TEST_CODEGEN") != "default":
         )
         _flags = _with if _probe.returncode == 0 else _flags
     os.environ["XLA_FLAGS"] = _flags
-    if _TEST_FLAGS[1] in _flags:
+    if _ELEMENTAL in _flags:
         USER_CODEGEN["xla_cpu_use_fusion_emitters"] = True
 
 DATA = Path(
