@@ -376,13 +376,13 @@ def test_instances_render_like_copies(scene):
     occ, col = (jnp.asarray(a) for a in V.voxels_to_dense(V.decode_rle(inst)))
     cam = look_at([55, 28, 50], [24, 5, 24], fov=55, width=W, height=H)
     ref, _ = reference(occ, col, cam)
-    out = render(V.as_jax(inst), cam)
+    out = render(V.as_jax(inst), cam, settings=NARROW)
     d_ok, c_ok, n = _agreement(out, ref)
     assert n > 800 and d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE
-    # Empty-space skipping only drops empty cells: without the distance map
-    # (every jump one cell) the frame and the element counts are identical.
+    # The walk's empty-space skipping only drops empty cells: without the distance
+    # map (every jump one cell) the frame and the element counts are identical.
     plain = dataclasses.replace(inst, empty_dist=np.zeros_like(inst.empty_dist))
-    out0 = render(V.as_jax(plain), cam)
+    out0 = render(V.as_jax(plain), cam, settings=NARROW)
     np.testing.assert_array_equal(np.asarray(out0.depth), np.asarray(out.depth))
     np.testing.assert_array_equal(np.asarray(out0.color), np.asarray(out.color))
     for k in ("elements_total", "elements_processed", "elements_rendered"):
@@ -814,11 +814,73 @@ def test_scatter_window_fills_an_accelerator(scene):
     assert rows not in export.export(batch, platforms=("cuda",))(four).mlir_module()
 
 
-def test_scatter_traversal_rejects_instance_maps(scene):
-    vox = _scene()
-    inst = V.place_instances(V.encode_rle(vox, levels=1), [[0, 0], [1, 1]], (2, 2))
-    with pytest.raises(ValueError, match="instance map"):
-        RC.render_rle(inst, CAMERAS[2][1], settings=SCATTER)
+INSTANCE_CAMERAS = [
+    ("across", look_at([-6.0, 30.0, -4.0], [40.0, 4.0, 36.0], fov=60, width=W, height=H)),
+    ("inside", camera_from_degrees([36, 14, 30], 45, -25, 0, 70, W, H)),
+]
+
+
+@pytest.fixture(scope="module")
+def instances():
+    # Six copies of the scene on a 3 x 3 tile map, with column mips.
+    tiles = [[0, 0], [1, 1], [0, 1], [2, 0], [2, 2], [1, 2]]
+    inst = V.place_instances(V.encode_rle(_scene(), levels=2, mips="column"), tiles, (3, 3))
+    occ, col = (jnp.asarray(a) for a in V.voxels_to_dense(V.decode_rle(inst)))
+    return V.as_jax(inst), occ, col
+
+
+def test_scatter_draws_instance_maps_as_the_walk(instances, user_jit):
+    # An instance map's elements are drawn per tile at the tile's mip level,
+    # gathered near tiles first in chunks: the one-cell walk's frame, at every
+    # LOD, whatever the chunk, window and table sizes.
+    rle, occ, col = instances
+    exact = user_jit(RC.render_rle)
+    small = dataclasses.replace(SCATTER, chunk=64, window=96, texels=8 * W)
+    for name, cam in INSTANCE_CAMERAS:
+        for lod in (np.float32(np.inf), np.float32(10.0)):
+            out = exact(rle, cam, settings=SCATTER, lod_distance=lod)
+            walk = render(rle, cam, settings=NARROW, lod_distance=lod)
+            d1, d2 = np.asarray(out.depth), np.asarray(walk.depth)
+            assert np.isfinite(d1).mean() > 0.3, name
+            assert _same_depth(d1, d2) >= 0.99, (name, lod, _same_depth(d1, d2))
+            same_color = np.all(np.asarray(out.color) == np.asarray(walk.color), -1)
+            assert np.mean(same_color) >= 0.99, (name, lod)
+            st = {k: int(v) for k, v in out.stats.items()}
+            # a few wide steps (the frame's pairs fill 4 windows)
+            assert 1 <= st["traversal_steps"] <= 16, (name, st)
+            many = exact(rle, cam, settings=small, lod_distance=lod)
+            np.testing.assert_array_equal(np.asarray(many.depth), d1)
+            np.testing.assert_array_equal(np.asarray(many.color), np.asarray(out.color))
+            assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
+            if np.isinf(lod):
+                ref, _ = reference(occ, col, cam)
+                d_ok, c_ok, n = _agreement(out, ref)
+                assert n > 2000 and d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE, (name, d_ok)
+
+
+def test_scatter_batches_instance_maps_and_lowers_for_accelerators(instances):
+    from jax import export
+
+    rle, _, _ = instances
+    cams = [c for _, c in INSTANCE_CAMERAS]
+    vector = dataclasses.replace(SCATTER, batching="vectorized")
+    fn = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=vector)))
+    vec = fn(stack_cameras(cams))
+    for k, cam in enumerate(cams):
+        single = render(rle, cam, settings=SCATTER, lod_distance=np.float32(np.inf))
+        d1, d2 = np.asarray(vec.depth[k]), np.asarray(single.depth)
+        both = np.isfinite(d1) & np.isfinite(d2)
+        assert np.mean(np.isfinite(d1) == np.isfinite(d2)) >= 0.995
+        rel = np.abs(d1[both] - d2[both]) / np.maximum(d2[both], 1.0)
+        assert np.mean(rel <= 1e-6) >= 0.995
+    exported = export.export(fn, platforms=("cuda", "tpu"))(stack_cameras(cams))
+    assert exported.platforms == ("cuda", "tpu")
+
+
+def test_scatter_traversal_rejects_what_it_cannot_draw(scene):
+    shared = V.share_columns(V.encode_rle(_scene(), levels=1))
+    with pytest.raises(ValueError, match="tails of their own"):
+        RC.render_rle(shared, CAMERAS[2][1], settings=SCATTER)
     with pytest.raises(ValueError, match="texels must be at least two ray-buffer columns"):
         RC.render_rle(scene[1], CAMERAS[2][1], settings=dataclasses.replace(SCATTER, texels=W))
 

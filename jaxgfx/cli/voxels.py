@@ -562,7 +562,7 @@ def register(subparsers) -> None:
     r.add_argument("--traversal", choices=("auto", "scatter", "narrow", "wide"),
                    default="auto",
                    help="how the ray buffer is drawn (RenderSettings.traversal; auto: "
-                   "scatter for one object, narrow for instance maps on the CPU)")  # fmt: skip
+                   "scatter; narrow on the CPU for shared column tails)")  # fmt: skip
     r.add_argument("--pool-size", type=positive_int, default=None,
                    help="narrow traversal: drawn elements kept per pass (default min(3 x "
                    "oversample x W x H at the --aa grid, 2^19)); a frame that draws more takes "

@@ -1,9 +1,9 @@
 """The per-plane ray caster from end to end (thesis 4.5): :func:`render_rle`.
 
 One frame: the vanishing point and the four screen segments (:mod:`.planes`), the
-ray buffer (by default on a single-object map every element scattered into the
-planes that cross its cell, :mod:`.scatter`; else each plane walked cell by
-cell, :mod:`.traverse`, or in blocks, :mod:`.wide`), the warp to the screen
+ray buffer (by default every element scattered into the planes that cross its
+cell, :mod:`.scatter`; else each plane walked cell by cell, :mod:`.traverse`,
+or in blocks, :mod:`.wide`), the warp to the screen
 (:mod:`.warp`) and, for pixels the warp is unsure of, a short exact re-walk.  Its
 static settings (sizes and switches that fix the program) are one
 :class:`~jaxgfx._src.voxel.settings.RenderSettings`.
@@ -163,10 +163,11 @@ def render_rle(
     per frame; shard the batch over devices to use more cores,
     :func:`jaxgfx.sweep.sharded_renderer`); lowered for an accelerator it renders
     them as one wider frame, a batch taking about its slowest frame's dependent
-    loop steps.  The default ``traversal`` scatters a single-object map's elements
-    into the planes (:mod:`.scatter`, every platform); an instance map takes the
-    one-cell walk (:mod:`.traverse`) on the CPU and the wide-step walk
-    (:mod:`.wide`) elsewhere.
+    loop steps.  The default ``traversal`` scatters the map's elements (an
+    instance map's: each tile's, at the tile's mip level) into the planes
+    (:mod:`.scatter`, every platform); a volume from
+    :func:`~jaxgfx.raycast.share_columns` takes the one-cell walk
+    (:mod:`.traverse`) on the CPU and the wide-step walk (:mod:`.wide`) elsewhere.
 
     The depth is differentiable w.r.t. the camera: the traversal's choices are
     discrete (no gradient flows through them) and each hit pixel's depth carries
@@ -264,11 +265,12 @@ def _differentiable_depth(cam: Camera, depth):
 def _render_auto(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> RenderOutput:
     """One frame; ``traversal="auto"`` picks by the scene and the platform.
 
-    A single-object map the scatter can draw takes it everywhere: a few wide
-    steps a frame, and on XLA:CPU faster than the one-cell walk on every scene
-    but the smallest (``experiments.rle_bench``).  An instance map takes the
-    one-cell walk on the CPU and the wide traversal elsewhere (an accelerator pays
-    per dependent step, a kernel launch each).  Only the chosen branch is compiled.
+    A map the scatter can draw takes it everywhere: a few wide steps a frame,
+    and on XLA:CPU faster than the one-cell walk on every scene but the smallest,
+    instance maps included (``experiments.rle_bench``).  Other maps (columns
+    that share tails) take the one-cell walk on the CPU and the wide traversal
+    elsewhere (an accelerator pays per dependent step, a kernel launch each).
+    Only the chosen branch is compiled.
     ``frames``: the frames of the vectorized batch this frame is one of.
     """
     if s.traversal != "auto":

@@ -35,9 +35,17 @@ cell is projected, while the thousands of dependent one-cell steps are gone.
 Of the walk's coverage culling (4.5.4.3) a coarse form stays: a window's pair
 whose rows already hold nearer writers from the windows before writes no row
 (:func:`_hidden`), so the row work follows what is still open, as far as the
-columns' order puts near elements first.  Instance maps are not enumerated this way (a
-column stands in every tile that holds the object): :func:`scatter_ray_buffer`
-takes single-object maps.
+columns' order puts near elements first.
+
+An instance map (:func:`~jaxgfx.raycast.place_instances`) stores the object's
+columns once, and a column stands in every tile that holds the object.  Its
+elements are enumerated per tile and mip level instead (:func:`_tile_levels`):
+a tile at level ``l`` contributes the object's level-``l`` elements where some
+plane crossing the tile spends part of its level-``l`` stretch over it, so a
+frame enumerates the instances in view in their LOD bands, never the map.  The
+element instances, near tiles first, are gathered a chunk at a time
+(:func:`_instance_chunk`: each one's map cell and planes) and drawn as above;
+the ray buffer keeps ``tile * N + element``.
 """
 
 from __future__ import annotations
@@ -58,9 +66,12 @@ from jaxgfx._src.voxel.grid import (
 )
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.scatter_planes import (
+    _box_corners,
+    _box_planes,
     _column_cells,
     _column_planes,
     _draw_order,
+    _near_first,
     _plane_tables,
     _Planes,
 )
@@ -80,6 +91,7 @@ __all__ = [
     "check_scatter_scene",
     "scatter_limits",
     "default_window",
+    "default_chunk",
     "rows_per_pair",
     "default_texels",
 ]
@@ -87,7 +99,7 @@ __all__ = [
 _BIG = np.float32(1e30)
 _NO_KEY = np.int32(2**31 - 1)
 # Bit fields of the packed per-element words (checked by check_scatter_scene).
-_N_BITS = 14  # planes of a column's first run
+_N_BITS = 15  # planes of a column's first run
 _MAX_TEXELS = 1 << 24  # the default table's largest size (two int32 words a texel)
 _CULL_BLOCK = 16  # texels per block of the windows' coverage test (_hidden)
 
@@ -121,6 +133,17 @@ def default_window(width: int, height: int, *, accelerator: bool = False, frames
     return 1 << max(14, int(np.ceil(np.log2(max(want, 1)))))
 
 
+def default_chunk(width: int, height: int) -> int:
+    """Element instances an instance map's frame gathers at once: a power of two >= W H.
+
+    The instances in view at the pixel LOD are about one per pixel or fewer
+    (each cell a pixel or more wide, most hidden tiles' levels out of view), so
+    most frames take one chunk; a frame with more draws its chunks in turn into
+    the same table (``stats["passes"]`` does not count them).
+    """
+    return 1 << max(14, int(np.ceil(np.log2(max(width * height, 1)))))
+
+
 def rows_per_pair(*, accelerator: bool = False) -> int:
     """A window's rows drawn per loop step, in windows: 1 on the CPU, 4 elsewhere.
 
@@ -141,17 +164,12 @@ def _running_max(x):
 def scatter_limits(rle, num_planes: int) -> str | None:
     """Why :func:`scatter_ray_buffer` cannot draw a scene, or None.
 
-    A single-object map (an instance map's column stands in every tile that
-    holds the object) whose columns own their tails (not
-    :func:`~jaxgfx.raycast.share_columns`'),
+    A map whose columns own their tails (not :func:`~jaxgfx.raycast.share_columns`'),
     below 8192 columns a side, 4096 voxels high, 8 levels and 64 elements a
-    column (its packed words), seen through fewer than 16383 planes.
+    column (its packed words), with fewer than ``2^31`` element instances (an
+    instance map's tiles times the object's elements), seen through fewer than
+    32767 planes.
     """
-    if tuple(rle.tiles.shape) != (1, 1):
-        return (
-            "traversal='scatter' draws single-object maps; an instance map "
-            f"(tiles {tuple(rle.tiles.shape)}) needs traversal='narrow' or 'wide'"
-        )
     if rle.shared_tails:
         # Its elements are listed once per stored element, each in one column.
         return (
@@ -168,6 +186,9 @@ def scatter_limits(rle, num_planes: int) -> str | None:
         return f"traversal='scatter' takes columns of at most 64 elements, got {rle.max_elements}"
     if num_planes >= 1 << _N_BITS:
         return f"traversal='scatter' takes at most {(1 << _N_BITS) - 1} planes, got {num_planes}"
+    n = int(np.prod(rle.tiles.shape)) * (rle.count.shape[0] + rle.elements.shape[0])
+    if n >= 1 << 31:
+        return f"traversal='scatter' takes fewer than 2^31 element instances, got {n}"
     return None
 
 
@@ -183,8 +204,13 @@ def check_scatter_scene(rle, num_planes: int, texels: int, rows: int) -> None:
         )
 
 
-def _flat_elements(rle, cam: Camera, pl: _Planes) -> _Elements:
-    """The scene's elements with their cells and planes (step 3's input)."""
+def _object_elements(rle, cam: Camera):
+    """The object's elements, flat (step 3's input), cells in the object's own tile.
+
+    Returns ``(elements, col)``: :class:`_Elements` whose ``n_pairs`` is 1 for an
+    element and 0 for an empty slot and whose ``planes`` are not set; (N,) the
+    pointer-map entry of each.
+    """
     C = rle.count.shape[0]
     NT = rle.elements.shape[0]
     ix_c, iz_c, lev_c = (jnp.asarray(a) for a in _column_cells(rle))
@@ -211,20 +237,129 @@ def _flat_elements(rle, cam: Camera, pl: _Planes) -> _Elements:
     # it (traverse._rank's order; the two groups never meet one ray).
     above = bottom.astype(jnp.float32) * cy > cam.position[1]
     rank = jnp.where(above, 2 * rle.max_elements - 1 - j, j)
-    lo1, n1, n2 = _column_planes(rle, cam, pl)
-    return _Elements(
-        n_pairs=_once(jnp.where(valid, n1[col] + n2[col], 0)),
+    el = _Elements(
+        n_pairs=valid.astype(jnp.int32),
         cell=_once(ix_c[col] | (iz_c[col] << _XZ_BITS) | (lev << (2 * _XZ_BITS))),
         heights=_once(bottom | (top << _H_BITS) | (rank << (2 * _H_BITS))),
-        planes=_once(n1[col] | (lo1[col] << _N_BITS)),
+        planes=jnp.zeros_like(col),
         color=_once(rle.color_ptr[safe].astype(jnp.int32) + drawn_before),
     )
+    return el, col
+
+
+def _flat_elements(rle, cam: Camera, pl: _Planes) -> _Elements:
+    """A single-object map's elements with their cells and planes (step 3's input)."""
+    el, col = _object_elements(rle, cam)
+    lo1, n1, n2 = _column_planes(rle, cam, pl)
+    return el._replace(
+        n_pairs=_once(jnp.where(el.n_pairs > 0, n1[col] + n2[col], 0)),
+        planes=_once(n1[col] | (lo1[col] << _N_BITS)),
+    )
+
+
+class _TileLevels(NamedTuple):
+    """An instance map's tiles at each mip level that some plane crosses, near ones first."""
+
+    tile: jax.Array  # (TX TZ L,) int32 tile index ``tx * TZ + tz``
+    lev: jax.Array  # (TX TZ L,) int32 its level
+    first: jax.Array  # (TX TZ L,) int32 its first element instance (its elements in a row)
+    incl: jax.Array  # (TX TZ L,) int32 one past its last
+    order: jax.Array  # (N,) int32 the object's elements by level (empty slots last)
+    start: jax.Array  # (L,) int32 each level's first in ``order``
+
+
+def _tile_levels(rle, cam: Camera, pl: _Planes, obj: _Elements) -> _TileLevels:
+    """The element instances a frame can draw, as runs of the object's levels (step 2).
+
+    A tile at level ``l`` contributes the object's level-``l`` elements where
+    some plane crosses the tile's square and spends part of its stretch at
+    ``l`` there (:func:`~.scatter_planes._box_planes`), so a frame enumerates
+    the instances in view in their LOD bands, not the map.
+    """
+    TX, TZ = rle.tiles.shape
+    L = rle.levels
+    X0, _, Z0 = rle.level_shapes[0]
+    # Near tiles first (what _hidden culls depends on it, the frame does not),
+    # each tile's levels in a row.
+    ex, ez = cam.position[0], cam.position[2]
+    tile = jnp.repeat(_near_first(TX, TZ, ex - 0.5 * TX * X0, ez - 0.5 * TZ * Z0), L)
+    lev = jnp.tile(jnp.arange(L, dtype=jnp.int32), TX * TZ)
+    x0 = ((tile // TZ) * X0).astype(jnp.float32) - ex
+    z0 = ((tile % TZ) * Z0).astype(jnp.float32) - ez
+    x1, z1 = x0 + X0, z0 + Z0
+    corner = _box_corners(pl, x0, z0, x1, z1)
+    _, n1, n2 = _box_planes(rle, pl, corner, x0, z0, x1, z1, lev)
+    # The object's elements by level, by counting (XLA:CPU sorts slowly).
+    lev_e = obj.cell >> (2 * _XZ_BITS)
+    of_level = (lev_e[:, None] == jnp.arange(L)[None, :]) & (obj.n_pairs > 0)[:, None]
+    rank = jnp.cumsum(of_level.astype(jnp.int32), axis=0)
+    per_level = rank[-1]
+    start = jnp.cumsum(per_level) - per_level
+    N = lev_e.shape[0]
+    mine = jnp.take_along_axis(rank, lev_e[:, None], 1)[:, 0]
+    at = jnp.where(obj.n_pairs > 0, start[lev_e] + mine - 1, N)
+    by_level = jnp.zeros((N,), jnp.int32).at[at].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
+    has = jnp.asarray(rle.tiles).reshape(-1)[tile] >= 0
+    count = jnp.where(has & (n1 + n2 > 0), per_level[lev], 0)
+    incl = jnp.cumsum(count)
+    return _TileLevels(
+        tile=tile, lev=lev, first=incl - count, incl=incl, order=by_level, start=start
+    )
+
+
+def _instance_chunk(rle, cam: Camera, pl: _Planes, obj: _Elements, tl: _TileLevels, start, size):
+    """Element instances ``start .. start + size - 1`` of :func:`_tile_levels`' runs.
+
+    Returns ``(elements, ids)``: their :class:`_Elements` in map cells, with their
+    planes (an instance past the frame's last has none), and (size,) each one's
+    writer id ``tile * N + element`` (what the ray buffer keeps, read back by
+    :func:`~.scatter_warp.warp_texels`).
+    """
+    TX, TZ = rle.tiles.shape
+    N = obj.cell.shape[0]
+    slot = start + jnp.arange(size, dtype=jnp.int32)
+    # Each slot's tile level by a running max of marks at the runs' first slots
+    # (the first slot's run found once): a search per slot costs XLA:CPU more.
+    rel = tl.first - start
+    at = (tl.incl > tl.first) & (rel >= 0) & (rel < size)
+    head = jnp.searchsorted(tl.incl, start, side="right").astype(jnp.int32)
+    runs = jnp.arange(tl.first.shape[0], dtype=jnp.int32)
+    mark = (
+        jnp.full((size,), -1, jnp.int32)
+        .at[jnp.where(at, rel, size)]
+        .max(runs, mode="drop")
+        .at[0]
+        .max(head)
+    )
+    i = jnp.clip(_running_max(mark), 0, tl.first.shape[0] - 1)
+    live = slot < tl.incl[-1]
+    lev, tile = tl.lev[i], tl.tile[i]
+    e = tl.order[jnp.clip(tl.start[lev] + slot - tl.first[i], 0, N - 1)]
+    _, _, sx, _, sz = _level_tables(rle)
+    mask = (1 << _XZ_BITS) - 1
+    cell = obj.cell[e]
+    ix = (tile // TZ) * sx[lev] + (cell & mask)
+    iz = (tile % TZ) * sz[lev] + ((cell >> _XZ_BITS) & mask)
+    c = jnp.left_shift(1, lev).astype(jnp.float32)
+    x0 = ix.astype(jnp.float32) * c - cam.position[0]
+    z0 = iz.astype(jnp.float32) * c - cam.position[2]
+    x1, z1 = x0 + c, z0 + c
+    corner = _box_corners(pl, x0, z0, x1, z1)
+    lo1, n1, n2 = _box_planes(rle, pl, corner, x0, z0, x1, z1, lev)
+    el = _Elements(
+        n_pairs=_once(jnp.where(live, n1 + n2, 0)),
+        cell=_once(ix | (iz << _XZ_BITS) | (lev << (2 * _XZ_BITS))),
+        heights=_once(obj.heights[e]),
+        planes=_once(n1 | (lo1 << _N_BITS)),
+        color=obj.color[e],
+    )
+    return el, tile * N + e
 
 
 def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p_lo, offset):
     """Rows and walk-order key of pair (element ``e``, its ``k``-th plane in the pass) (steps 3-4).
 
-    ``planes``: the element's plane runs in the pass (``n1 | lo1 << 14``, then
+    ``planes``: the element's plane runs in the pass (``n1 | lo1 << 15``, then
     sorted planes from ``p_lo``); ``offset``: the pass's first texel.
 
     Returns ``(n_rows, key, first texel)``: ``n_rows = 0`` where the plane does not
@@ -234,7 +369,8 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     n1 = planes & ((1 << _N_BITS) - 1)
     ps = jnp.where(k < n1, (planes >> _N_BITS) + k, p_lo + k - n1)
     ps = jnp.clip(ps, 0, pl.hx.shape[0] - 1)
-    hx, hz = pl.hx[ps], pl.hz[ps]
+    row = pl.packed[ps]
+    hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi = (row[..., i] for i in range(9))
     mask = (1 << _XZ_BITS) - 1
     ix, iz, lev = cell & mask, (cell >> _XZ_BITS) & mask, cell >> (2 * _XZ_BITS)
     c = jnp.left_shift(1, lev).astype(jnp.float32)
@@ -254,7 +390,11 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
         # One level: the map's cells lie between its entry and exit anyway.
         t_lo, t_hi = jnp.float32(0.0), jnp.asarray(cam.far, jnp.float32)
     else:
-        t_lo, t_hi = pl.t_level[lev, ps], pl.t_level[lev + 1, ps]
+        # The stretch at the element's level: selects over the row, not a gather.
+        t_lo = t_hi = jnp.float32(0.0)
+        for lv in range(rle.levels):
+            t_lo = jnp.where(lev == lv, row[..., 9 + lv], t_lo)
+            t_hi = jnp.where(lev == lv, row[..., 10 + lv], t_hi)
     t_in = jnp.maximum(jnp.maximum(t_in_x, t_in_z), t_lo)
     t_out = jnp.minimum(jnp.minimum(t_out_x, t_out_z), t_hi)
     seen = ok & (t_in <= t_out) & (t_out > t_lo) & (t_in < t_hi)
@@ -266,14 +406,11 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     y_hi = (((heights >> _H_BITS) & hmask) + 1).astype(jnp.float32) * cy
     inv_in = 1.0 / jnp.maximum(t_in, _TINY)
     inv_out = 1.0 / jnp.maximum(t_out, jnp.maximum(t_in, _TINY))
-    q = _PlaneConsts(
-        hx, hz, inv_x, inv_z, t_hi, pl.s_min[ps], pl.s_max[ps], pl.hf[ps], pl.p_num[ps],
-        pl.q_num[ps],
-    )  # fmt: skip
+    q = _PlaneConsts(hx, hz, inv_x, inv_z, t_hi, s_min, s_max, hf, p_num, q_num)
     s0, s1 = _slopes(q, y_lo, y_hi, ey, inv_in, inv_out)
     r0, r1 = _rows_of(q, s0, s1, camera_basis(cam)[2][1])
-    r0 = jnp.maximum(r0, pl.lo[ps].astype(jnp.int32))
-    r1 = jnp.minimum(r1, pl.hi[ps].astype(jnp.int32))
+    r0 = jnp.maximum(r0, lo.astype(jnp.int32))
+    r1 = jnp.minimum(r1, hi.astype(jnp.int32))
     seen = seen & (s0 <= s1) & (r0 < r1)
     X, Z = rle.shape[0], rle.shape[2]
     o_bits = int(np.ceil(np.log2(2 * (X + Z) + 2)))
@@ -360,6 +497,7 @@ def scatter_ray_buffer(
     rows_per_pair: int = 1,
     texels: int,
     neighbors: int = 1,
+    chunk: int = 1 << 14,
 ):
     """Each pixel's ray-buffer texel writers, drawn column by column (see the module docstring).
 
@@ -369,7 +507,7 @@ def scatter_ray_buffer(
     pairs are projected once whatever the table size.
 
     Args:
-        rle: a single-object :class:`~jaxgfx.raycast.RLEVolume` (:func:`check_scatter_scene`).
+        rle: an :class:`~jaxgfx.raycast.RLEVolume` (:func:`check_scatter_scene`).
         cam: camera.
         seg: the frame's :class:`Segments`.
         planes: (P,) int32 plane indices, ``arange(P)``.
@@ -381,18 +519,30 @@ def scatter_ray_buffer(
             ``2 rows``: a pass draws planes whose rows start in its first
             ``texels - rows``.
         neighbors: static planes on either side whose writers each pixel keeps.
+        chunk: static element instances of an instance map gathered at once
+            (:func:`default_chunk`).
 
     Returns:
         ``(buffer, elements, stats (4,) int32, steps () int32, passes () int32)``:
         the ray buffer (:class:`RayBuffer`: the last pass's texels, and every
         pixel's writers from the earlier passes); the per-element words
-        (:class:`_Elements`); the frame's pairs / row updates / texels drawn / 0
-        (no texel is lost); the window steps; the passes.
+        (:class:`_Elements`; an instance map's: the object's, cells in its own
+        tile); the frame's pairs / row updates / texels drawn / 0 (no texel is
+        lost); the loop steps (windows, and an instance map's chunks); the passes.
     """
     pl = _plane_tables(rle, cam, seg, planes, rows=rows, lod=jnp.asarray(lod_distance, jnp.float32))
-    el = _flat_elements(rle, cam, pl)
-    N = el.n_pairs.shape[0]
-    draw = _draw_order(rle, cam, N)
+    instanced = tuple(rle.tiles.shape) != (1, 1)
+    if instanced:
+        el, _ = _object_elements(rle, cam)
+        tl = _tile_levels(rle, cam, pl, el)
+        E = int(chunk)
+        n_chunks = (tl.incl[-1] + E - 1) // E
+        # Most frames take one chunk: built once, drawn in every pass.
+        chunk0 = _instance_chunk(rle, cam, pl, el, tl, 0, E)
+    else:
+        el = _flat_elements(rle, cam, pl)
+        E = el.n_pairs.shape[0]
+        draw = _draw_order(rle, cam, E)
     Q, R = int(window), int(rows_per_pair) * int(window)
     T = int(texels)
     span = T - rows  # a pass's planes start in its first ``span`` texels
@@ -400,7 +550,7 @@ def scatter_ray_buffer(
     slot_r = jnp.arange(R, dtype=jnp.int32)
     pad = jnp.zeros((Q,), jnp.int32)
 
-    def window_step(p_lo, offset, order, first_pair, incl, total, planes_g):
+    def window_step(ce, ids, p_lo, offset, order, first_pair, incl, total, planes_g):
         def pairs(s: _ScatterLoop) -> _Window:
             """The next window's pairs: element of each slot by a running max of
             marks over the window's elements (the first holds pair ``start``)."""
@@ -417,10 +567,11 @@ def scatter_ray_buffer(
             e = order[c]
             k = s.start + slot_q - first_pair[c]
             ok = s.start + slot_q < total
-            n_rows, key, texel0 = _pair_rows(rle, cam, pl, el, e, k, ok, planes_g[c], p_lo, offset)
+            n_rows, key, texel0 = _pair_rows(rle, cam, pl, ce, e, k, ok, planes_g[c], p_lo, offset)
             n_rows = jnp.where(_hidden(s.key, n_rows, key, texel0), 0, n_rows)
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
-            return _Window(e, n_rows, key, texel0, jnp.cumsum(n_rows))
+            writer = e if ids is None else ids[e]
+            return _Window(writer, n_rows, key, texel0, jnp.cumsum(n_rows))
 
         def body(s: _ScatterLoop) -> _ScatterLoop:
             # One loop, R rows a step: a window's pairs are taken when the rows
@@ -463,6 +614,38 @@ def scatter_ray_buffer(
 
         return body
 
+    def draw_elements(ce: _Elements, ids, draw, p_lo, p_hi, offset, key, element):
+        """Draws elements ``ce`` (``draw``: their order) into the pass's texel table.
+
+        Returns ``(key, element, pairs, row updates, steps)``.
+        """
+        n_pairs, planes_g = _pass_planes(ce, p_lo, p_hi)
+        # The elements with pairs in the pass, compacted (and padded by a window
+        # of none): a window of Q pairs spans at most Q of them, so a step's
+        # work is the window's, not the scene's.
+        has = n_pairs > 0
+        live = jnp.arange(E) < jnp.sum(has.astype(jnp.int32))
+        order = draw[jnp.nonzero(has[draw], size=E, fill_value=0)[0]]
+        order = jnp.concatenate([order, pad])
+        n_c = jnp.concatenate([jnp.where(live, n_pairs[order[:E]], 0), pad])
+        incl = jnp.cumsum(n_c)
+        first_pair = incl - n_c
+        total = incl[-1]
+        body = window_step(ce, ids, p_lo, offset, order, first_pair, incl, total, planes_g[order])
+        s0 = _ScatterLoop(
+            start=jnp.int32(0),
+            key=key,
+            element=element,
+            rows=jnp.int32(0),
+            steps=jnp.int32(0),
+            window=_Window(*(jnp.zeros((Q,), jnp.int32) for _ in range(5))),
+            drawn=jnp.int32(0),
+        )
+        s = jax.lax.while_loop(
+            lambda s: (s.start < total) | (s.drawn < s.window.r_incl[-1]), body, s0
+        )
+        return s.key, s.element, total, s.rows, s.steps
+
     def buffer(ps: _Passes, offset) -> RayBuffer:
         return RayBuffer(ps.element, offset, pl.plane_base, pl.plane_rows, ps.candidates)
 
@@ -477,40 +660,39 @@ def scatter_ray_buffer(
         # Planes without rows (sorted last, first texel at the end) cross no cell.
         p_lo = jnp.searchsorted(pl.first, offset, side="left").astype(jnp.int32)
         p_hi = jnp.searchsorted(pl.first, offset + span, side="left").astype(jnp.int32)
-        n_pairs, planes_g = _pass_planes(el, p_lo, p_hi)
-        # The elements with pairs in the pass, compacted (and padded by a window
-        # of none): a window of Q pairs spans at most Q of them, so a step's
-        # work is the window's, not the scene's.
-        has = n_pairs > 0
-        live = jnp.arange(N) < jnp.sum(has.astype(jnp.int32))
-        order = draw[jnp.nonzero(has[draw], size=N, fill_value=0)[0]]
-        order = jnp.concatenate([order, pad])
-        n_c = jnp.concatenate([jnp.where(live, n_pairs[order[:N]], 0), pad])
-        incl = jnp.cumsum(n_c)
-        first_pair = incl - n_c
-        total = incl[-1]
-        body = window_step(p_lo, offset, order, first_pair, incl, total, planes_g[order])
-        s0 = _ScatterLoop(
-            start=jnp.int32(0),
-            key=jnp.full((T,), _NO_KEY, jnp.int32),
-            element=jnp.full((T,), -1, jnp.int32),
-            rows=jnp.int32(0),
-            steps=jnp.int32(0),
-            window=_Window(*(jnp.zeros((Q,), jnp.int32) for _ in range(5))),
-            drawn=jnp.int32(0),
-        )
-        s = jax.lax.while_loop(
-            lambda s: (s.start < total) | (s.drawn < s.window.r_incl[-1]), body, s0
-        )
-        drawn = jnp.sum((s.element >= 0).astype(jnp.int32))
+        key0 = jnp.full((T,), _NO_KEY, jnp.int32)
+        element0 = jnp.full((T,), -1, jnp.int32)
+        if not instanced:
+            out = draw_elements(el, None, draw, p_lo, p_hi, offset, key0, element0)
+            key, element, *counts = out
+        else:
+            # The element instances in chunks of E, near tiles first; every
+            # chunk draws into the same table.
+            def one_chunk(c):
+                ce, ids = jax.lax.cond(
+                    c[0] == 0,
+                    lambda: chunk0,
+                    lambda: _instance_chunk(rle, cam, pl, el, tl, c[0] * E, E),
+                )
+                out = draw_elements(ce, ids, slot_e, p_lo, p_hi, offset, c[1], c[2])
+                return (c[0] + 1, *out[:2], *(a + b for a, b in zip(c[3:], out[2:])))
+
+            zero = jnp.int32(0)
+            c0 = (zero, key0, element0, zero, zero, zero)
+            c = jax.lax.while_loop(lambda c: c[0] < n_chunks, one_chunk, c0)
+            key, element, *counts = c[1:]
+        del key
+        total, rows_drawn, steps = counts
+        drawn = jnp.sum((element >= 0).astype(jnp.int32))
         return _Passes(
             passes=ps.passes + 1,
             candidates=candidates,
-            element=s.element,
-            counts=ps.counts + jnp.stack([total, s.rows, drawn]),
-            steps=ps.steps + s.steps,
+            element=element,
+            counts=ps.counts + jnp.stack([total, rows_drawn, drawn]),
+            steps=ps.steps + steps + (n_chunks if instanced else 0),
         )
 
+    slot_e = jnp.arange(E, dtype=jnp.int32)
     n_passes = jnp.maximum((pl.texels + span - 1) // span, 1)
     p0 = _Passes(
         passes=jnp.int32(0),
@@ -557,6 +739,7 @@ def scatter_frame(
             rows_per_pair=sizes[1],
             texels=texels,
             neighbors=settings.neighbors,
+            chunk=settings.chunk or default_chunk(cam.width, cam.height),
         )
 
     # Only the traversal depends on the window and its row steps; the warp is

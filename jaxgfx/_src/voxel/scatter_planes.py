@@ -28,7 +28,7 @@ __all__: list[str] = []
 class _Planes(NamedTuple):
     """Per-plane data in direction order (:func:`_plane_tables`); (P,) arrays unless noted."""
 
-    angle: jax.Array  # direction about the reference, ascending; inf for planes without rows
+    angle: jax.Array  # direction about the reference (_pseudo_angle), ascending; inf: no rows
     n_live: jax.Array  # () planes with rows
     ref: jax.Array  # (2,) reference x-z direction of the angles
     hx: jax.Array
@@ -46,6 +46,9 @@ class _Planes(NamedTuple):
     first: jax.Array  # (P,) int32 first texel of each plane, ascending
     plane_base: jax.Array  # (P,) int32 ``base`` in plane order
     plane_rows: jax.Array  # (P,) int32 ``lo | hi << 16`` in plane order (``hi = lo``: no rows)
+    # (P, 10 + levels) float32: hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi, t_level
+    packed: jax.Array
+    stretch: jax.Array  # (2, K, levels, P) float32 t_level's min / max sparse tables
 
 
 def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) -> _Planes:
@@ -66,7 +69,7 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
         _, t0_out, go_x0 = exit_cell(consts, cam, ix, iz, lev - 1)
         # Not out of the level's first cell yet: the cell holding the band's end.
         c = float(2 ** (lev - 1))
-        xl, _, zl = rle.level_shapes[lev - 1]
+        xl, zl = _map_level_shape(rle, lev - 1)
         t_b = jnp.minimum(band, consts.t_far)
         bx = jnp.clip(jnp.floor((ex + hx * t_b) / c), 0, xl - 1).astype(jnp.int32)
         bz = jnp.clip(jnp.floor((ez + hz * t_b) / c), 0, zl - 1).astype(jnp.int32)
@@ -91,7 +94,7 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
         ]
     )
     angle = jnp.where(
-        live, jnp.arctan2(ref[0] * hz - ref[1] * hx, ref[0] * hx + ref[1] * hz), jnp.inf
+        live, _pseudo_angle(ref[0] * hz - ref[1] * hx, ref[0] * hx + ref[1] * hz), jnp.inf
     )
     order = jnp.argsort(angle)
     # The texels: each plane's rows [lo, hi) back to back, in direction order
@@ -103,6 +106,24 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
     # Pinned (see walk._once): a per-pair gather would recompute its table's
     # whole set-up for every pair otherwise.
     fl = lambda a: _once_f(a.astype(jnp.float32)[order])  # noqa: E731
+    t_level = jnp.stack(t_lev)[:, order].astype(jnp.float32)
+    # A pair reads all of its plane's constants: one row gather, not a dozen.
+    columns = [hx, hz, consts.s_min, consts.s_max, consts.hf, consts.p_num, consts.q_num]
+    columns += [jnp.where(live, c0.lo, 0), jnp.where(live, c0.hi, 0)]
+    packed = jnp.concatenate(
+        [jnp.stack([c.astype(jnp.float32)[order] for c in columns], axis=1), t_level.T], axis=1
+    )
+    # Each level's stretches as sparse tables (2^k planes from each plane on):
+    # the least start and greatest end over any run of planes in two reads.
+    live_s = jnp.isfinite(angle[order])[None, :]
+    tabs = [[jnp.where(live_s, t_level[:-1], jnp.inf)], [jnp.where(live_s, t_level[1:], -jnp.inf)]]
+    P = order.shape[0]
+    for k in range(1, max(P.bit_length(), 1)):
+        h = 1 << (k - 1)
+        for tab, op, fill in ((tabs[0], jnp.minimum, jnp.inf), (tabs[1], jnp.maximum, -jnp.inf)):
+            prev = tab[-1]
+            shifted = jnp.concatenate([prev[:, h:], jnp.full((L, h), fill, jnp.float32)], axis=1)
+            tab.append(op(prev, shifted))
     return _Planes(
         angle=angle[order],
         n_live=jnp.sum(live.astype(jnp.int32)),
@@ -117,11 +138,13 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
         lo=fl(jnp.where(live, c0.lo, 0)),
         hi=fl(jnp.where(live, c0.hi, 0)),
         base=_once(base),
-        t_level=_once_f(jnp.stack(t_lev)[:, order]),
+        t_level=_once_f(t_level),
         texels=jnp.sum(n_rows),
         first=first,
         plane_base=_once(base[position]),
         plane_rows=_once(c0.lo | ((c0.lo + n_rows[position]) << 16)),
+        packed=_once_f(packed),
+        stretch=jnp.stack([jnp.stack(tabs[0]), jnp.stack(tabs[1])]),
     )
 
 
@@ -135,11 +158,108 @@ def _column_cells(rle):
     return (q // zl).astype(np.int32), (q % zl).astype(np.int32), lev.astype(np.int32)
 
 
-def _column_planes(rle, cam: Camera, pl: _Planes):
-    """Per pointer-map entry: the sorted planes that cross its cell (step 2).
+def _map_level_shape(rle, lev: int) -> tuple[int, int]:
+    """Map cells ``(x, z)`` of mip level ``lev``: the object's times the instance tiles."""
+    tx, tz = rle.tiles.shape
+    xl, _, zl = rle.level_shapes[lev]
+    return tx * xl, tz * zl
 
-    Returns ``(lo1, n1, n2)`` (C,) int32: planes ``lo1 .. lo1 + n1 - 1`` and, where the
-    cell's directions wrap past the back of the eye, ``0 .. n2 - 1`` too.
+
+def _pseudo_angle(v, u):
+    """The direction ``(u, v)`` as a number in ``[-2, 2]`` that grows with ``atan2(v, u)``.
+
+    The diamond angle: the same order as the angle (all that sorting the planes
+    and bracketing a cell's corners need) at a division instead of an ``atan2``,
+    which XLA:CPU evaluates some 30x slower; a half turn is 2.
+    """
+    s = jnp.abs(u) + jnp.abs(v)
+    r = 1.0 - u / jnp.where(s > 0, s, 1.0)
+    return jnp.where(v >= 0, r, -r)
+
+
+def _corner_angle(pl: _Planes, dx, dz):
+    """Direction of the map point ``(dx, dz)`` from the eye, as the planes' ``angle``."""
+    rx, rz = pl.ref[0], pl.ref[1]
+    return _pseudo_angle(rx * dz - rz * dx, rx * dx + rz * dz)
+
+
+def _box_corners(pl: _Planes, x0, z0, x1, z1):
+    """(4, ...) the directions of boxes' corners (:func:`_corner_angle`)."""
+    pairs = ((x0, z0), (x1, z0), (x0, z1), (x1, z1))
+    return jnp.stack([_corner_angle(pl, a, b) for a, b in pairs])
+
+
+def _level_reach(rle, pl: _Planes):
+    """``(t_lo, t_hi)`` (levels,): the horizontal distances some plane spends at each level."""
+    live = jnp.isfinite(pl.angle)
+    t_lo = jnp.min(jnp.where(live[None, :], pl.t_level[:-1], jnp.inf), axis=1)
+    t_hi = jnp.max(jnp.where(live[None, :], pl.t_level[1:], -jnp.inf), axis=1)
+    return t_lo, t_hi
+
+
+def _run_stretch(pl: _Planes, lev, a, n):
+    """Least start and greatest end of level ``lev``'s stretch over planes ``a .. a + n - 1``.
+
+    ``(inf, -inf)`` where ``n = 0``.
+    """
+    P = pl.stretch.shape[-1]
+    m = jnp.maximum(n, 1)
+    k = 31 - jax.lax.clz(m.astype(jnp.int32))
+    a_c = jnp.clip(a, 0, P - 1)
+    b_c = jnp.clip(a + m - jnp.left_shift(1, k), 0, P - 1)
+    t_lo = jnp.minimum(pl.stretch[0, k, lev, a_c], pl.stretch[0, k, lev, b_c])
+    t_hi = jnp.maximum(pl.stretch[1, k, lev, a_c], pl.stretch[1, k, lev, b_c])
+    return jnp.where(n > 0, t_lo, jnp.inf), jnp.where(n > 0, t_hi, -jnp.inf)
+
+
+def _box_planes(rle, pl: _Planes, corner, x0, z0, x1, z1, lev):
+    """The sorted planes that cross map boxes (step 2): ``(lo1, n1, n2)`` int32.
+
+    Args:
+        corner: (4, ...) the boxes' corner directions (:func:`_corner_angle`).
+        x0, z0, x1, z1: the boxes' extent relative to the eye, in level-0 voxels.
+        lev: the mip level the boxes are drawn at (only the planes' stretch at
+            that level crosses them).
+
+    Returns:
+        Planes ``lo1 .. lo1 + n1 - 1`` and, where the box's directions wrap past
+        the back of the eye, ``0 .. n2 - 1`` too.
+    """
+    a0, a1 = jnp.min(corner, axis=0), jnp.max(corner, axis=0)
+    # A box seen under more than a half turn lies across the back direction:
+    # its directions run from its corners' least angle >= 0 up to the back (2),
+    # and from -2 up to their greatest angle < 0.
+    wrap = (a1 - a0) > 2.0
+    w0 = jnp.min(jnp.where(corner >= 0, corner, np.inf), axis=0)
+    w1 = jnp.max(jnp.where(corner < 0, corner, -np.inf), axis=0)
+    lo1 = jnp.searchsorted(pl.angle, jnp.where(wrap, w0, a0), side="left").astype(jnp.int32)
+    hi1 = jnp.searchsorted(pl.angle, jnp.where(wrap, 2.0, a1), side="right").astype(jnp.int32)
+    hi2 = jnp.where(wrap, jnp.searchsorted(pl.angle, w1, side="right").astype(jnp.int32), 0)
+    # The eye's own box: every plane starts in it.
+    eye = (x0 <= 0) & (x1 >= 0) & (z0 <= 0) & (z1 >= 0)
+    if rle.levels > 1:
+        eye = eye & (_level_reach(rle, pl)[0][lev] <= 0.0)
+    lo1 = jnp.where(eye, 0, lo1)
+    n1 = jnp.maximum(jnp.where(eye, pl.n_live, jnp.minimum(hi1, pl.n_live)) - lo1, 0)
+    n2 = jnp.where(eye, 0, jnp.minimum(hi2, pl.n_live))
+    if rle.levels == 1:
+        return lo1, n1, n2
+    # A box that none of its planes spends its level's stretch over draws
+    # nothing (a plane entering the map far away starts at level 0 there: the
+    # stretches of all planes together would keep most boxes).
+    lo_a, hi_a = _run_stretch(pl, lev, lo1, n1)
+    lo_b, hi_b = _run_stretch(pl, lev, 0, n2)
+    t_lo, t_hi = jnp.minimum(lo_a, lo_b), jnp.maximum(hi_a, hi_b)
+    near = jnp.hypot(jnp.maximum(jnp.maximum(x0, -x1), 0.0), jnp.maximum(jnp.maximum(z0, -z1), 0.0))
+    far = jnp.hypot(jnp.maximum(jnp.abs(x0), jnp.abs(x1)), jnp.maximum(jnp.abs(z0), jnp.abs(z1)))
+    reach = (far >= t_lo) & (near <= t_hi)
+    return lo1, jnp.where(reach, n1, 0), jnp.where(reach, n2, 0)
+
+
+def _column_planes(rle, cam: Camera, pl: _Planes):
+    """Per pointer-map entry of a single-object map: the sorted planes that cross its cell.
+
+    Returns ``(lo1, n1, n2)`` (C,) int32 (:func:`_box_planes`).
     """
     ix_n, iz_n, lev_n = _column_cells(rle)
     ix, iz, lev = (jnp.asarray(a) for a in (ix_n, iz_n, lev_n))
@@ -147,8 +267,6 @@ def _column_planes(rle, cam: Camera, pl: _Planes):
     ex, ez = cam.position[0], cam.position[2]
     x0 = ix.astype(jnp.float32) * c - ex
     z0 = iz.astype(jnp.float32) * c - ez
-    x1, z1 = x0 + c, z0 + c
-    rx, rz = pl.ref[0], pl.ref[1]
     # The direction of every cell corner once (neighbouring cells share them),
     # each level's corner grid flat, then each cell's four corners gathered.
     grids, offs = [], [0]
@@ -156,65 +274,44 @@ def _column_planes(rle, cam: Camera, pl: _Planes):
         cl = np.float32(2**lev_l)
         dx = jnp.arange(xl + 1, dtype=jnp.float32)[:, None] * cl - ex
         dz = jnp.arange(zl + 1, dtype=jnp.float32)[None, :] * cl - ez
-        grids.append(jnp.arctan2(rx * dz - rz * dx, rx * dx + rz * dz).ravel())
+        grids.append(_corner_angle(pl, dx, dz).ravel())
         offs.append(offs[-1] + (xl + 1) * (zl + 1))
     angles = jnp.concatenate(grids)
     zl_n = np.asarray([s[2] for s in rle.level_shapes], np.int64)[lev_n] + 1
     i00 = np.asarray(offs, np.int64)[lev_n] + ix_n.astype(np.int64) * zl_n + iz_n
     corner = jnp.stack([angles[i00 + d] for d in (0, 1, zl_n, zl_n + 1)])
-    a0, a1 = jnp.min(corner, axis=0), jnp.max(corner, axis=0)
-    # A cell seen under more than a half turn lies across the back direction:
-    # its directions run from its corners' least angle >= 0 up to pi, and from
-    # -pi up to their greatest angle < 0.
-    wrap = (a1 - a0) > np.pi
-    w0 = jnp.min(jnp.where(corner >= 0, corner, np.inf), axis=0)
-    w1 = jnp.max(jnp.where(corner < 0, corner, -np.inf), axis=0)
-    lo1 = jnp.searchsorted(pl.angle, jnp.where(wrap, w0, a0), side="left").astype(jnp.int32)
-    hi1 = jnp.searchsorted(pl.angle, jnp.where(wrap, np.pi, a1), side="right").astype(jnp.int32)
-    hi2 = jnp.where(wrap, jnp.searchsorted(pl.angle, w1, side="right").astype(jnp.int32), 0)
-    # The eye's own cell: every plane starts in it.
-    eye = (x0 <= 0) & (x1 >= 0) & (z0 <= 0) & (z1 >= 0)
-    if rle.levels > 1:
-        # A level's cells outside every plane's stretch at that level draw nothing.
-        live = jnp.isfinite(pl.angle)
-        t_lo = jnp.min(jnp.where(live[None, :], pl.t_level[:-1], jnp.inf), axis=1)[lev]
-        t_hi = jnp.max(jnp.where(live[None, :], pl.t_level[1:], -jnp.inf), axis=1)[lev]
-        near = jnp.hypot(
-            jnp.maximum(jnp.maximum(x0, -x1), 0.0), jnp.maximum(jnp.maximum(z0, -z1), 0.0)
-        )
-        far = jnp.hypot(
-            jnp.maximum(jnp.abs(x0), jnp.abs(x1)), jnp.maximum(jnp.abs(z0), jnp.abs(z1))
-        )
-        eye = eye & (t_lo <= 0.0)
-        reach = (far >= t_lo) & (near <= t_hi)
-    else:
-        reach = jnp.ones_like(eye)
-    lo1 = jnp.where(eye, 0, lo1)
-    hi1 = jnp.where(eye, pl.n_live, jnp.minimum(hi1, pl.n_live))
-    n2 = jnp.where(eye, 0, jnp.minimum(hi2, pl.n_live))
-    return lo1, jnp.where(reach, jnp.maximum(hi1 - lo1, 0), 0), jnp.where(reach, n2, 0)
+    return _box_planes(rle, pl, corner, x0, z0, x0 + c, z0 + c, lev)
+
+
+def _near_first(nx: int, nz: int, dx, dz):
+    """(nx nz,) int32 the cells ``x * nz + z`` of an ``nx x nz`` grid, the eye's side first.
+
+    Rows of cells across the axis the eye stands farther out along (``dx, dz``:
+    the eye less the grid's centre), from the eye's side: near cells mostly come
+    before far ones, with no sort.
+    """
+    p = jnp.arange(nx * nz, dtype=jnp.int32)
+    by_x = jnp.where(dx > 0, nx * nz - 1 - p, p)
+    pz = jnp.where(dz > 0, nx * nz - 1 - p, p)
+    by_z = (pz % nx) * nz + pz // nx
+    return jnp.where(jnp.abs(dz) > jnp.abs(dx), by_z, by_x)
 
 
 def _draw_order(rle, cam: Camera, n: int):
     """(n,) int32 the flat elements in the order the windows draw them: near columns first.
 
     :func:`~.scatter._hidden` catches a pair only behind the writers of earlier windows.
-    So the column heads come first, row by row of columns across the map's
-    axis the eye stands farther out along, from the eye's side; then the
-    tails (stored in column order), from the eye's side in x.  Which element
-    wins a texel does not depend on it.
+    So the column heads come first, each level's in :func:`_near_first` order;
+    then the tails (stored in column order), from the eye's side in x.  Which
+    element wins a texel does not depend on it.
     """
     X, Z = rle.shape[0], rle.shape[2]
     dx = cam.position[0] - 0.5 * X
     dz = cam.position[2] - 0.5 * Z
-    heads = []
-    for (xl, _, zl), off in zip(rle.level_shapes, rle.level_offsets):
-        p = jnp.arange(xl * zl, dtype=jnp.int32)
-        # Column c = x * Z_l + z of the level (encode_rle's pointer map).
-        by_x = jnp.where(dx > 0, xl * zl - 1 - p, p)
-        pz = jnp.where(dz > 0, xl * zl - 1 - p, p)
-        by_z = (pz % xl) * zl + pz // xl
-        heads.append(off + jnp.where(jnp.abs(dz) > jnp.abs(dx), by_z, by_x))
+    heads = [
+        off + _near_first(xl, zl, dx, dz)
+        for (xl, _, zl), off in zip(rle.level_shapes, rle.level_offsets)
+    ]
     C = rle.count.shape[0]
     t = jnp.arange(n - C, dtype=jnp.int32)
     return jnp.concatenate([*heads, C + jnp.where(dx > 0, n - C - 1 - t, t)])

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, pixel_rays
+from jaxgfx._src.voxel.grid import _level_tables
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.walk import _once
 from jaxgfx._src.voxel.warp import _nearest_candidate, _ray_buffer_texel
@@ -28,12 +29,16 @@ _H_BITS = 12  # voxel heights
 
 
 class _Elements(NamedTuple):
-    """Every RLE element, flat: the column heads, then the tails; (N,) int32."""
+    """Every RLE element, flat: the column heads, then the tails; (N,) int32.
+
+    An instance map's chunk (:func:`~.scatter._instance_chunk`) holds element
+    instances instead, cells in the map.
+    """
 
     n_pairs: jax.Array  # planes that cross the element's cell (0: empty slot)
     cell: jax.Array  # ix | iz << 13 | level << 26
     heights: jax.Array  # bottom | top << 12 | front-to-back rank << 24
-    planes: jax.Array  # n1 | lo1 << 14: its column's sorted planes
+    planes: jax.Array  # n1 | lo1 << 15: its column's sorted planes
     color: jax.Array  # colour index of the top voxel
 
 
@@ -103,6 +108,10 @@ def warp_texels(rle, cam: Camera, seg: Segments, buffer: RayBuffer, el: _Element
     # Every pixel's writers, the last pass's added to the earlier passes'.
     writers = _once(_harvest(cam, seg, buffer, None))
 
+    _, _, sx, _, sz = _level_tables(rle)
+    TZ, N = rle.tiles.shape[1], el.cell.shape[0]
+    instanced = tuple(rle.tiles.shape) != (1, 1)
+
     def lookup(di):
         # Selects, not a gather: XLA:CPU runs this warp far slower with one.
         e = jnp.int32(-1)
@@ -110,14 +119,17 @@ def warp_texels(rle, cam: Camera, seg: Segments, buffer: RayBuffer, el: _Element
             e = jnp.where(di == j - n, writers[j], e)
         hit = e >= 0
         e = jnp.where(hit, e, 0)
+        if instanced:
+            # An instance map's writer is ``tile * N + element``
+            # (scatter._instance_chunk): the object's element, in its tile.
+            tile = e // N
+            e = e - tile * N
         cell, heights = el.cell[e], el.heights[e]
-        box = (
-            (heights >> _H_BITS) & hmask,
-            heights & hmask,
-            cell & mask,
-            (cell >> _XZ_BITS) & mask,
-            cell >> (2 * _XZ_BITS),
-        )
+        ix, iz, lev = cell & mask, (cell >> _XZ_BITS) & mask, cell >> (2 * _XZ_BITS)
+        if instanced:
+            ix = ix + (tile // TZ) * sx[lev]
+            iz = iz + (tile % TZ) * sz[lev]
+        box = ((heights >> _H_BITS) & hmask, heights & hmask, ix, iz, lev)
         return hit, e, box
 
     return _nearest_candidate(rle, lookup, lambda e: el.color[e], origins, dirs, neighbors=n)

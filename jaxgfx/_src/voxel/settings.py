@@ -74,8 +74,8 @@ class RenderSettings:
             ``"scatter"``: every element projected into the planes that cross its
             cell, each texel keeping its first writer by a scatter-min of the
             walk order (:mod:`~jaxgfx._src.voxel.scatter`: a few wide steps;
-            single-object maps only).
-            ``"auto"`` (default): ``"scatter"`` for a single-object map within its
+            not for :func:`~jaxgfx.raycast.share_columns`' volumes).
+            ``"auto"`` (default): ``"scatter"`` for a map within its
             limits (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`), on every
             platform; otherwise ``"narrow"`` where the program is lowered for the
             CPU and ``"wide"`` elsewhere (``jax.lax.platform_dependent``).
@@ -89,6 +89,10 @@ class RenderSettings:
         texels: scatter traversal: size of the ray buffer, the planes' rows back
             to back (None: :func:`~jaxgfx._src.voxel.scatter.default_texels`);
             a frame with more is drawn in passes (``stats["passes"]``).
+        chunk: scatter traversal of an instance map: element instances (a tile's
+            element at the tile's mip level) gathered at once (None:
+            :func:`~jaxgfx._src.voxel.scatter.default_chunk`); a frame with more
+            takes them in turn.
         batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
             ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
             ``"auto"`` (default: frames on the CPU, vector elsewhere).
@@ -114,6 +118,7 @@ class RenderSettings:
     slots: int | None = static_field(None)
     window: int | None = static_field(None)
     texels: int | None = static_field(None)
+    chunk: int | None = static_field(None)
     batching: str = static_field("auto")
 
     def __post_init__(self):
@@ -134,6 +139,7 @@ class RenderSettings:
             slots=_optional_int("slots", self.slots, 1),
             window=_optional_int("window", self.window, 1),
             texels=_optional_int("texels", self.texels, 1),
+            chunk=_optional_int("chunk", self.chunk, 1),
         )
         if self.traversal not in _TRAVERSALS:
             raise ValueError(f"traversal must be one of {_TRAVERSALS}, got {self.traversal!r}")
