@@ -161,6 +161,11 @@ def _running_max(x):
     return jax.lax.associative_scan(jnp.maximum, x)
 
 
+def _running_sum(x):
+    # jnp.cumsum lowers to a reduce-window that XLA:CPU runs slower than this.
+    return jax.lax.associative_scan(jnp.add, x, axis=0)
+
+
 def scatter_limits(rle, num_planes: int) -> str | None:
     """Why :func:`scatter_ray_buffer` cannot draw a scene, or None.
 
@@ -292,7 +297,7 @@ def _tile_levels(rle, cam: Camera, pl: _Planes, obj: _Elements) -> _TileLevels:
     # The object's elements by level, by counting (XLA:CPU sorts slowly).
     lev_e = obj.cell >> (2 * _XZ_BITS)
     of_level = (lev_e[:, None] == jnp.arange(L)[None, :]) & (obj.n_pairs > 0)[:, None]
-    rank = jnp.cumsum(of_level.astype(jnp.int32), axis=0)
+    rank = _running_sum(of_level.astype(jnp.int32))
     per_level = rank[-1]
     start = jnp.cumsum(per_level) - per_level
     N = lev_e.shape[0]
@@ -301,7 +306,7 @@ def _tile_levels(rle, cam: Camera, pl: _Planes, obj: _Elements) -> _TileLevels:
     by_level = jnp.zeros((N,), jnp.int32).at[at].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
     has = jnp.asarray(rle.tiles).reshape(-1)[tile] >= 0
     count = jnp.where(has & (n1 + n2 > 0), per_level[lev], 0)
-    incl = jnp.cumsum(count)
+    incl = _running_sum(count)
     return _TileLevels(
         tile=tile, lev=lev, first=incl - count, incl=incl, order=by_level, start=start
     )
@@ -571,7 +576,7 @@ def scatter_ray_buffer(
             n_rows = jnp.where(_hidden(s.key, n_rows, key, texel0), 0, n_rows)
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
             writer = e if ids is None else ids[e]
-            return _Window(writer, n_rows, key, texel0, jnp.cumsum(n_rows))
+            return _Window(writer, n_rows, key, texel0, _running_sum(n_rows))
 
         def body(s: _ScatterLoop) -> _ScatterLoop:
             # One loop, R rows a step: a window's pairs are taken when the rows
@@ -628,7 +633,7 @@ def scatter_ray_buffer(
         order = draw[jnp.nonzero(has[draw], size=E, fill_value=0)[0]]
         order = jnp.concatenate([order, pad])
         n_c = jnp.concatenate([jnp.where(live, n_pairs[order[:E]], 0), pad])
-        incl = jnp.cumsum(n_c)
+        incl = _running_sum(n_c)
         first_pair = incl - n_c
         total = incl[-1]
         body = window_step(ce, ids, p_lo, offset, order, first_pair, incl, total, planes_g[order])
