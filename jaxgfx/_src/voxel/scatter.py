@@ -13,7 +13,7 @@ buffer comes out of a different loop order, which needs no dependent steps:
    directions of its corners seen from the eye: one contiguous run of the
    sorted planes, or two where the run wraps behind the eye
    (:func:`~.scatter_planes._column_planes`).  These are the cells each plane's 2-D DDA visits.
-3. Each RLE element of each column (:func:`_flat_elements`) is paired with the
+3. Each RLE element of each column (:func:`~.scatter_elements._flat_elements`) is paired with the
    planes that cross its cell.  Per pair, the plane's line enters and leaves the
    cell at closed-form distances (the DDA's own arithmetic), clipped to the
    stretch the walk spends at the element's mip level (4.5.4.1); the element's
@@ -37,15 +37,8 @@ whose rows already hold nearer writers from the windows before writes no row
 (:func:`_hidden`), so the row work follows what is still open, as far as the
 columns' order puts near elements first.
 
-An instance map (:func:`~jaxgfx.raycast.place_instances`) stores the object's
-columns once, and a column stands in every tile that holds the object.  Its
-elements are enumerated per tile and mip level instead (:func:`_tile_levels`):
-a tile at level ``l`` contributes the object's level-``l`` elements where some
-plane crossing the tile spends part of its level-``l`` stretch over it, so a
-frame enumerates the instances in view in their LOD bands, never the map.  The
-element instances, near tiles first, are gathered a chunk at a time
-(:func:`_instance_chunk`: each one's map cell and planes) and drawn as above;
-the ray buffer keeps ``tile * N + element``.
+An instance map's elements are enumerated per tile at the tile's mip level
+and gathered a chunk at a time (:mod:`.scatter_elements`), then drawn as above.
 """
 
 from __future__ import annotations
@@ -58,23 +51,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
-from jaxgfx._src.voxel.grid import (
-    _cell_height,
-    _column_head,
-    _column_runs,
-    _level_tables,
-)
+from jaxgfx._src.voxel.grid import _cell_height
 from jaxgfx._src.voxel.planes import Segments
-from jaxgfx._src.voxel.scatter_planes import (
-    _box_corners,
-    _box_planes,
-    _column_cells,
-    _column_planes,
-    _draw_order,
-    _near_first,
-    _plane_tables,
-    _Planes,
+from jaxgfx._src.voxel.scatter_elements import (
+    _N_BITS,
+    _flat_elements,
+    _instance_chunk,
+    _object_elements,
+    _running_sum,
+    _slot_runs,
+    _tile_levels,
+    default_chunk,
 )
+from jaxgfx._src.voxel.scatter_planes import _draw_order, _plane_tables, _Planes
 from jaxgfx._src.voxel.scatter_warp import (
     _H_BITS,
     _XZ_BITS,
@@ -83,7 +72,7 @@ from jaxgfx._src.voxel.scatter_warp import (
     _harvest,
     warp_texels,
 )
-from jaxgfx._src.voxel.walk import _TINY, _once, _PlaneConsts, _rows_of, _slopes
+from jaxgfx._src.voxel.walk import _TINY, _PlaneConsts, _rows_of, _slopes
 
 __all__ = [
     "scatter_frame",
@@ -99,7 +88,6 @@ __all__ = [
 _BIG = np.float32(1e30)
 _NO_KEY = np.int32(2**31 - 1)
 # Bit fields of the packed per-element words (checked by check_scatter_scene).
-_N_BITS = 15  # planes of a column's first run
 _MAX_TEXELS = 1 << 24  # the default table's largest size (two int32 words a texel)
 _CULL_BLOCK = 16  # texels per block of the windows' coverage test (_hidden)
 
@@ -133,17 +121,6 @@ def default_window(width: int, height: int, *, accelerator: bool = False, frames
     return 1 << max(14, int(np.ceil(np.log2(max(want, 1)))))
 
 
-def default_chunk(width: int, height: int) -> int:
-    """Element instances an instance map's frame gathers at once: a power of two >= W H.
-
-    The instances in view at the pixel LOD are about one per pixel or fewer
-    (each cell a pixel or more wide, most hidden tiles' levels out of view), so
-    most frames take one chunk; a frame with more draws its chunks in turn into
-    the same table (``stats["passes"]`` does not count them).
-    """
-    return 1 << max(14, int(np.ceil(np.log2(max(width * height, 1)))))
-
-
 def rows_per_pair(*, accelerator: bool = False) -> int:
     """A window's rows drawn per loop step, in windows: 1 on the CPU, 4 elsewhere.
 
@@ -155,15 +132,6 @@ def rows_per_pair(*, accelerator: bool = False) -> int:
     windows.
     """
     return 1 if not accelerator else 4
-
-
-def _running_max(x):
-    return jax.lax.associative_scan(jnp.maximum, x)
-
-
-def _running_sum(x):
-    # jnp.cumsum lowers to a reduce-window that XLA:CPU runs slower than this.
-    return jax.lax.associative_scan(jnp.add, x, axis=0)
 
 
 def scatter_limits(rle, num_planes: int) -> str | None:
@@ -207,158 +175,6 @@ def check_scatter_scene(rle, num_planes: int, texels: int, rows: int) -> None:
             f"texels must be at least two ray-buffer columns ({2 * rows}) and below "
             f"2^31, got {texels}"
         )
-
-
-def _object_elements(rle, cam: Camera):
-    """The object's elements, flat (step 3's input), cells in the object's own tile.
-
-    Returns ``(elements, col)``: :class:`_Elements` whose ``n_pairs`` is 1 for an
-    element and 0 for an empty slot and whose ``planes`` are not set; (N,) the
-    pointer-map entry of each.
-    """
-    C = rle.count.shape[0]
-    NT = rle.elements.shape[0]
-    ix_c, iz_c, lev_c = (jnp.asarray(a) for a in _column_cells(rle))
-    cnt = rle.count.astype(jnp.int32)
-    ptr = rle.ptr.astype(jnp.int32)
-    # Tail element i belongs to the column whose pointer is the last at or before it.
-    mark = (
-        jnp.full((NT,), -1, jnp.int32)
-        .at[jnp.where(cnt >= 2, ptr, NT)]
-        .max(jnp.arange(C, dtype=jnp.int32), mode="drop")
-    )
-    owner = jnp.clip(_running_max(mark), 0, C - 1)
-    col = jnp.concatenate([jnp.arange(C, dtype=jnp.int32), owner])
-    j = jnp.concatenate(
-        [jnp.zeros((C,), jnp.int32), jnp.arange(NT, dtype=jnp.int32) - ptr[owner] + 1]
-    )
-    _, _, sy, _ = _level_tables(rle)[1:]
-    lev = lev_c[col]
-    safe, n, draw0, bottom0 = _column_head(rle, col, jnp.ones(col.shape, bool), sy[lev])
-    top, bottom, valid, drawn_before = _column_runs(rle, safe, n, draw0, bottom0, j)
-    valid = valid & (j >= 0) & (j < n)
-    cy = _cell_height(rle, jnp.left_shift(1, lev).astype(jnp.float32))
-    # Front to back in a column: down from the eye's height below it, up above
-    # it (traverse._rank's order; the two groups never meet one ray).
-    above = bottom.astype(jnp.float32) * cy > cam.position[1]
-    rank = jnp.where(above, 2 * rle.max_elements - 1 - j, j)
-    el = _Elements(
-        n_pairs=valid.astype(jnp.int32),
-        cell=_once(ix_c[col] | (iz_c[col] << _XZ_BITS) | (lev << (2 * _XZ_BITS))),
-        heights=_once(bottom | (top << _H_BITS) | (rank << (2 * _H_BITS))),
-        planes=jnp.zeros_like(col),
-        color=_once(rle.color_ptr[safe].astype(jnp.int32) + drawn_before),
-    )
-    return el, col
-
-
-def _flat_elements(rle, cam: Camera, pl: _Planes) -> _Elements:
-    """A single-object map's elements with their cells and planes (step 3's input)."""
-    el, col = _object_elements(rle, cam)
-    lo1, n1, n2 = _column_planes(rle, cam, pl)
-    return el._replace(
-        n_pairs=_once(jnp.where(el.n_pairs > 0, n1[col] + n2[col], 0)),
-        planes=_once(n1[col] | (lo1[col] << _N_BITS)),
-    )
-
-
-class _TileLevels(NamedTuple):
-    """An instance map's tiles at each mip level that some plane crosses, near ones first."""
-
-    tile: jax.Array  # (TX TZ L,) int32 tile index ``tx * TZ + tz``
-    lev: jax.Array  # (TX TZ L,) int32 its level
-    first: jax.Array  # (TX TZ L,) int32 its first element instance (its elements in a row)
-    incl: jax.Array  # (TX TZ L,) int32 one past its last
-    order: jax.Array  # (N,) int32 the object's elements by level (empty slots last)
-    start: jax.Array  # (L,) int32 each level's first in ``order``
-
-
-def _tile_levels(rle, cam: Camera, pl: _Planes, obj: _Elements) -> _TileLevels:
-    """The element instances a frame can draw, as runs of the object's levels (step 2).
-
-    A tile at level ``l`` contributes the object's level-``l`` elements where
-    some plane crosses the tile's square and spends part of its stretch at
-    ``l`` there (:func:`~.scatter_planes._box_planes`), so a frame enumerates
-    the instances in view in their LOD bands, not the map.
-    """
-    TX, TZ = rle.tiles.shape
-    L = rle.levels
-    X0, _, Z0 = rle.level_shapes[0]
-    # Near tiles first (what _hidden culls depends on it, the frame does not),
-    # each tile's levels in a row.
-    ex, ez = cam.position[0], cam.position[2]
-    tile = jnp.repeat(_near_first(TX, TZ, ex - 0.5 * TX * X0, ez - 0.5 * TZ * Z0), L)
-    lev = jnp.tile(jnp.arange(L, dtype=jnp.int32), TX * TZ)
-    x0 = ((tile // TZ) * X0).astype(jnp.float32) - ex
-    z0 = ((tile % TZ) * Z0).astype(jnp.float32) - ez
-    x1, z1 = x0 + X0, z0 + Z0
-    corner = _box_corners(pl, x0, z0, x1, z1)
-    _, n1, n2 = _box_planes(rle, pl, corner, x0, z0, x1, z1, lev)
-    # The object's elements by level, by counting (XLA:CPU sorts slowly).
-    lev_e = obj.cell >> (2 * _XZ_BITS)
-    of_level = (lev_e[:, None] == jnp.arange(L)[None, :]) & (obj.n_pairs > 0)[:, None]
-    rank = _running_sum(of_level.astype(jnp.int32))
-    per_level = rank[-1]
-    start = jnp.cumsum(per_level) - per_level
-    N = lev_e.shape[0]
-    mine = jnp.take_along_axis(rank, lev_e[:, None], 1)[:, 0]
-    at = jnp.where(obj.n_pairs > 0, start[lev_e] + mine - 1, N)
-    by_level = jnp.zeros((N,), jnp.int32).at[at].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
-    has = jnp.asarray(rle.tiles).reshape(-1)[tile] >= 0
-    count = jnp.where(has & (n1 + n2 > 0), per_level[lev], 0)
-    incl = _running_sum(count)
-    return _TileLevels(
-        tile=tile, lev=lev, first=incl - count, incl=incl, order=by_level, start=start
-    )
-
-
-def _instance_chunk(rle, cam: Camera, pl: _Planes, obj: _Elements, tl: _TileLevels, start, size):
-    """Element instances ``start .. start + size - 1`` of :func:`_tile_levels`' runs.
-
-    Returns ``(elements, ids)``: their :class:`_Elements` in map cells, with their
-    planes (an instance past the frame's last has none), and (size,) each one's
-    writer id ``tile * N + element`` (what the ray buffer keeps, read back by
-    :func:`~.scatter_warp.warp_texels`).
-    """
-    TX, TZ = rle.tiles.shape
-    N = obj.cell.shape[0]
-    slot = start + jnp.arange(size, dtype=jnp.int32)
-    # Each slot's tile level by a running max of marks at the runs' first slots
-    # (the first slot's run found once): a search per slot costs XLA:CPU more.
-    rel = tl.first - start
-    at = (tl.incl > tl.first) & (rel >= 0) & (rel < size)
-    head = jnp.searchsorted(tl.incl, start, side="right").astype(jnp.int32)
-    runs = jnp.arange(tl.first.shape[0], dtype=jnp.int32)
-    mark = (
-        jnp.full((size,), -1, jnp.int32)
-        .at[jnp.where(at, rel, size)]
-        .max(runs, mode="drop")
-        .at[0]
-        .max(head)
-    )
-    i = jnp.clip(_running_max(mark), 0, tl.first.shape[0] - 1)
-    live = slot < tl.incl[-1]
-    lev, tile = tl.lev[i], tl.tile[i]
-    e = tl.order[jnp.clip(tl.start[lev] + slot - tl.first[i], 0, N - 1)]
-    _, _, sx, _, sz = _level_tables(rle)
-    mask = (1 << _XZ_BITS) - 1
-    cell = obj.cell[e]
-    ix = (tile // TZ) * sx[lev] + (cell & mask)
-    iz = (tile % TZ) * sz[lev] + ((cell >> _XZ_BITS) & mask)
-    c = jnp.left_shift(1, lev).astype(jnp.float32)
-    x0 = ix.astype(jnp.float32) * c - cam.position[0]
-    z0 = iz.astype(jnp.float32) * c - cam.position[2]
-    x1, z1 = x0 + c, z0 + c
-    corner = _box_corners(pl, x0, z0, x1, z1)
-    lo1, n1, n2 = _box_planes(rle, pl, corner, x0, z0, x1, z1, lev)
-    el = _Elements(
-        n_pairs=_once(jnp.where(live, n1 + n2, 0)),
-        cell=_once(ix | (iz << _XZ_BITS) | (lev << (2 * _XZ_BITS))),
-        heights=_once(obj.heights[e]),
-        planes=_once(n1 | (lo1 << _N_BITS)),
-        color=obj.color[e],
-    )
-    return el, tile * N + e
 
 
 def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p_lo, offset):
@@ -560,15 +376,8 @@ def scatter_ray_buffer(
             """The next window's pairs: element of each slot by a running max of
             marks over the window's elements (the first holds pair ``start``)."""
             head = jnp.searchsorted(incl, s.start, side="right").astype(jnp.int32)
-            rel = jax.lax.dynamic_slice(first_pair, (head,), (Q,)) - s.start
-            mark = (
-                jnp.full((Q,), -1, jnp.int32)
-                .at[jnp.where((rel >= 0) & (rel < Q), rel, Q)]
-                .max(slot_q, mode="drop")
-                .at[0]
-                .max(0)
-            )
-            c = head + _running_max(mark)
+            firsts = jax.lax.dynamic_slice(first_pair, (head,), (Q,))
+            c = head + _slot_runs(firsts, jnp.ones((Q,), bool), 0, s.start, Q)
             e = order[c]
             k = s.start + slot_q - first_pair[c]
             ok = s.start + slot_q < total
@@ -588,17 +397,8 @@ def scatter_ray_buffer(
             # Row ``rs + i``'s pair by a running max of marks (the first holds
             # the pair that row ``rs`` is in).
             r_first = w.r_incl - w.n_rows
-            rel = r_first - rs
-            inside = (w.n_rows > 0) & (rel >= 0) & (rel < R)
             first = jnp.searchsorted(w.r_incl, rs, side="right").astype(jnp.int32)
-            rmark = (
-                jnp.full((R,), -1, jnp.int32)
-                .at[jnp.where(inside, rel, R)]
-                .max(slot_q, mode="drop")
-                .at[0]
-                .max(first)
-            )
-            q = jnp.clip(_running_max(rmark), 0, Q - 1)
+            q = jnp.clip(_slot_runs(r_first, w.n_rows > 0, first, rs, R), 0, Q - 1)
             row = rs + slot_r
             live = row < w.r_incl[-1]
             texel = jnp.where(live, w.texel0[q] + row - r_first[q], T)

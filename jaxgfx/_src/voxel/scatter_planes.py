@@ -48,7 +48,8 @@ class _Planes(NamedTuple):
     plane_rows: jax.Array  # (P,) int32 ``lo | hi << 16`` in plane order (``hi = lo``: no rows)
     # (P, 10 + levels) float32: hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi, t_level
     packed: jax.Array
-    stretch: jax.Array  # (2, K, levels, P) float32 t_level's min / max sparse tables
+    # (2, K, levels, P) float32 t_level's min / max sparse tables (K = 1 for one level)
+    stretch: jax.Array
 
 
 def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) -> _Planes:
@@ -114,11 +115,12 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
         [jnp.stack([c.astype(jnp.float32)[order] for c in columns], axis=1), t_level.T], axis=1
     )
     # Each level's stretches as sparse tables (2^k planes from each plane on):
-    # the least start and greatest end over any run of planes in two reads.
+    # the least start and greatest end over any run of planes in two reads
+    # (_run_stretch; one level needs none).
     live_s = jnp.isfinite(angle[order])[None, :]
     tabs = [[jnp.where(live_s, t_level[:-1], jnp.inf)], [jnp.where(live_s, t_level[1:], -jnp.inf)]]
     P = order.shape[0]
-    for k in range(1, max(P.bit_length(), 1)):
+    for k in range(1, P.bit_length() if L > 1 else 1):
         h = 1 << (k - 1)
         for tab, op, fill in ((tabs[0], jnp.minimum, jnp.inf), (tabs[1], jnp.maximum, -jnp.inf)):
             prev = tab[-1]
@@ -170,7 +172,8 @@ def _pseudo_angle(v, u):
 
     The diamond angle: the same order as the angle (all that sorting the planes
     and bracketing a cell's corners need) at a division instead of an ``atan2``,
-    which XLA:CPU evaluates some 30x slower; a half turn is 2.
+    which XLA:CPU evaluates far more slowly.  A half turn is exactly 2: the
+    opposite of a direction at or above the reference is its value less 2.
     """
     s = jnp.abs(u) + jnp.abs(v)
     r = 1.0 - u / jnp.where(s > 0, s, 1.0)
