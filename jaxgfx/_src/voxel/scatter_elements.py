@@ -47,10 +47,10 @@ _N_BITS = 15  # planes of a column's first run (the packed ``planes`` word)
 def default_chunk(width: int, height: int) -> int:
     """Element instances an instance map's frame gathers at once: a power of two >= W H.
 
-    The instances in view at the pixel LOD are about one per pixel or fewer
-    (each cell a pixel or more wide, most hidden tiles' levels out of view), so
-    most frames take one chunk; a frame with more draws its chunks in turn into
-    the same table (``stats["passes"]`` does not count them).
+    At the one-pixel LOD a frame holds about one element instance per pixel in
+    view (each cell about a pixel wide), so most frames take one chunk; a frame
+    with more draws its chunks in turn into the same table (``stats["passes"]``
+    does not count them; ``traversal_steps`` does).
     """
     return 1 << max(14, int(np.ceil(np.log2(max(width * height, 1)))))
 
