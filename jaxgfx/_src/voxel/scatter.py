@@ -189,7 +189,7 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     cell, heights = el.cell[e], el.heights[e]
     n1 = planes & ((1 << _N_BITS) - 1)
     ps = jnp.where(k < n1, (planes >> _N_BITS) + k, p_lo + k - n1)
-    ps = jnp.clip(ps, 0, pl.hx.shape[0] - 1)
+    ps = jnp.clip(ps, 0, pl.packed.shape[0] - 1)
     row = pl.packed[ps]
     hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi = (row[..., i] for i in range(9))
     mask = (1 << _XZ_BITS) - 1

@@ -31,22 +31,14 @@ class _Planes(NamedTuple):
     angle: jax.Array  # direction about the reference (_pseudo_angle), ascending; inf: no rows
     n_live: jax.Array  # () planes with rows
     ref: jax.Array  # (2,) reference x-z direction of the angles
-    hx: jax.Array
-    hz: jax.Array
-    s_min: jax.Array
-    s_max: jax.Array
-    hf: jax.Array
-    p_num: jax.Array
-    q_num: jax.Array
-    lo: jax.Array  # float32 first row of the plane
-    hi: jax.Array  # float32 one past its last row
     base: jax.Array  # int32 texel index of the plane's row 0 (its rows are back to back)
-    t_level: jax.Array  # (levels + 1, P) where the walk enters each mip level; last: t_far
     texels: jax.Array  # () int32, the frame's texels (sum of the planes' rows)
     first: jax.Array  # (P,) int32 first texel of each plane, ascending
     plane_base: jax.Array  # (P,) int32 ``base`` in plane order
     plane_rows: jax.Array  # (P,) int32 ``lo | hi << 16`` in plane order (``hi = lo``: no rows)
-    # (P, 10 + levels) float32: hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi, t_level
+    # (P, 10 + levels) float32, a row a plane: the walk's constants hx, hz, s_min,
+    # s_max, hf, p_num, q_num; its rows lo, hi (one past the last); t_level (levels
+    # + 1: where the walk enters each mip level, last t_far)
     packed: jax.Array
     # (2, K, levels, P) float32 t_level's min / max sparse tables (K = 1 for one level)
     stretch: jax.Array
@@ -104,11 +96,10 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
     first = jnp.cumsum(n_rows) - n_rows
     base = first - jnp.where(live, c0.lo, 0)[order]
     position = jnp.zeros_like(order).at[order].set(jnp.arange(order.shape[0], dtype=order.dtype))
-    # Pinned (see walk._once): a per-pair gather would recompute its table's
-    # whole set-up for every pair otherwise.
-    fl = lambda a: _once_f(a.astype(jnp.float32)[order])  # noqa: E731
     t_level = jnp.stack(t_lev)[:, order].astype(jnp.float32)
-    # A pair reads all of its plane's constants: one row gather, not a dozen.
+    # A pair reads all of its plane's constants: one row gather, not a dozen
+    # (pinned, see walk._once: a per-pair gather would recompute the table's
+    # whole set-up for every pair otherwise).
     columns = [hx, hz, consts.s_min, consts.s_max, consts.hf, consts.p_num, consts.q_num]
     columns += [jnp.where(live, c0.lo, 0), jnp.where(live, c0.hi, 0)]
     packed = jnp.concatenate(
@@ -130,17 +121,7 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
         angle=angle[order],
         n_live=jnp.sum(live.astype(jnp.int32)),
         ref=ref,
-        hx=fl(hx),
-        hz=fl(hz),
-        s_min=fl(consts.s_min),
-        s_max=fl(consts.s_max),
-        hf=fl(consts.hf),
-        p_num=fl(consts.p_num),
-        q_num=fl(consts.q_num),
-        lo=fl(jnp.where(live, c0.lo, 0)),
-        hi=fl(jnp.where(live, c0.hi, 0)),
         base=_once(base),
-        t_level=_once_f(t_level),
         texels=jnp.sum(n_rows),
         first=first,
         plane_base=_once(base[position]),
@@ -192,14 +173,6 @@ def _box_corners(pl: _Planes, x0, z0, x1, z1):
     return jnp.stack([_corner_angle(pl, a, b) for a, b in pairs])
 
 
-def _level_reach(rle, pl: _Planes):
-    """``(t_lo, t_hi)`` (levels,): the horizontal distances some plane spends at each level."""
-    live = jnp.isfinite(pl.angle)
-    t_lo = jnp.min(jnp.where(live[None, :], pl.t_level[:-1], jnp.inf), axis=1)
-    t_hi = jnp.max(jnp.where(live[None, :], pl.t_level[1:], -jnp.inf), axis=1)
-    return t_lo, t_hi
-
-
 def _run_stretch(pl: _Planes, lev, a, n):
     """Least start and greatest end of level ``lev``'s stretch over planes ``a .. a + n - 1``.
 
@@ -241,7 +214,8 @@ def _box_planes(rle, pl: _Planes, corner, x0, z0, x1, z1, lev):
     # The eye's own box: every plane starts in it.
     eye = (x0 <= 0) & (x1 >= 0) & (z0 <= 0) & (z1 >= 0)
     if rle.levels > 1:
-        eye = eye & (_level_reach(rle, pl)[0][lev] <= 0.0)
+        # (only where some plane starts its walk at this level)
+        eye = eye & (_run_stretch(pl, lev, 0, pl.n_live)[0] <= 0.0)
     lo1 = jnp.where(eye, 0, lo1)
     n1 = jnp.maximum(jnp.where(eye, pl.n_live, jnp.minimum(hi1, pl.n_live)) - lo1, 0)
     n2 = jnp.where(eye, 0, jnp.minimum(hi2, pl.n_live))
