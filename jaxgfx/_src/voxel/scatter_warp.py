@@ -31,7 +31,7 @@ _H_BITS = 12  # voxel heights
 class _Elements(NamedTuple):
     """Every RLE element, flat: the column heads, then the tails; (N,) int32.
 
-    An instance map's chunk (:func:`~.scatter._instance_chunk`) holds element
+    An instance map's chunk (:func:`~.scatter_elements._instance_chunk`) holds element
     instances instead, cells in the map.
     """
 
@@ -121,7 +121,7 @@ def warp_texels(rle, cam: Camera, seg: Segments, buffer: RayBuffer, el: _Element
         e = jnp.where(hit, e, 0)
         if instanced:
             # An instance map's writer is ``tile * N + element``
-            # (scatter._instance_chunk): the object's element, in its tile.
+            # (scatter_elements._instance_chunk): the object's element, in its tile.
             tile = e // N
             e = e - tile * N
         cell, heights = el.cell[e], el.heights[e]

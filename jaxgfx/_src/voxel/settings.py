@@ -91,7 +91,7 @@ class RenderSettings:
             a frame with more is drawn in passes (``stats["passes"]``).
         chunk: scatter traversal of an instance map: element instances (a tile's
             element at the tile's mip level) gathered at once (None:
-            :func:`~jaxgfx._src.voxel.scatter.default_chunk`); a frame with more
+            :func:`~jaxgfx._src.voxel.scatter_elements.default_chunk`); a frame with more
             takes them in turn.
         batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
             ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
