@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import struct
 
 import jax
@@ -727,30 +728,38 @@ def test_tail_sums_read_columns_as_the_decoder():
         np.testing.assert_array_equal(colors, col[tuple(xyz[solid].T)])
 
 
-def test_window_coverage_test_leaves_out_only_hidden_pairs():
-    """A pair is left out only where every texel it reaches holds a nearer writer."""
+def test_coverage_test_leaves_out_exactly_the_pairs_behind_every_block_they_reach():
+    """A pair is left out only where every texel it reaches holds a nearer writer,
+    and always where every block of texels it touches does, whatever its height."""
     from jaxgfx._src.voxel.scatter import _CULL_BLOCK, _NO_KEY, _hidden
 
     rng = np.random.default_rng(3)
+    rows = 12 * _CULL_BLOCK
     T = 50 * _CULL_BLOCK + 7  # a last, partial block
     table = rng.integers(0, 1000, T).astype(np.int32)
-    table[rng.random(T) < 0.02] = _NO_KEY  # texels no writer reached yet
-    n = rng.integers(0, 2 * _CULL_BLOCK + 3, 4000).astype(np.int32)
+    # Texels no writer reached yet, some in runs so that tall pairs can pass.
+    table[rng.random(T) < 0.002] = _NO_KEY
+    table[7 * _CULL_BLOCK + 3] = _NO_KEY
+    n = rng.integers(0, rows + 1, 4000).astype(np.int32)
+    n[:2000] = rng.integers(0, 2 * _CULL_BLOCK + 3, 2000)
     t0 = rng.integers(0, T - n + 1).astype(np.int32)
     key = rng.integers(0, 1200, 4000).astype(np.int32)
-    hidden = np.asarray(jax.jit(_hidden)(table, n, key, t0))
+    hidden = np.asarray(jax.jit(functools.partial(_hidden, rows=rows))(table, n, key, t0))
     nearer = np.array([np.all(table[a : a + m] < k) for a, m, k in zip(t0, n, key)])
-    lo = t0 // _CULL_BLOCK
     # Blocks as the test reads them: the last one padded with texels no one drew.
-    table = np.pad(table, (0, -T % _CULL_BLOCK), constant_values=_NO_KEY)
-    whole = np.array(
-        [np.all(table[b * _CULL_BLOCK : (b + 1) * _CULL_BLOCK] < k) for b, k in zip(lo, key)]
+    padded = np.pad(table, (0, -T % _CULL_BLOCK), constant_values=_NO_KEY)
+    lo, hi = t0 // _CULL_BLOCK, (t0 + np.maximum(n, 1) - 1) // _CULL_BLOCK
+    blocks = np.array(
+        [
+            np.all(padded[a * _CULL_BLOCK : (b + 1) * _CULL_BLOCK] < k)
+            for a, b, k in zip(lo, hi, key)
+        ]
     )
-    in_block = (t0 + n - 1) // _CULL_BLOCK == lo
-    assert not np.any(hidden & ~nearer & (n > 0))
-    # Where the pair's block holds only nearer writers, the test sees it.
-    np.testing.assert_array_equal(hidden[in_block & (n > 0)], whole[in_block & (n > 0)])
-    assert np.sum(hidden & (n > 0)) > 100
+    drawn = n > 0
+    assert not np.any(hidden & ~nearer & drawn)
+    np.testing.assert_array_equal(hidden[drawn], blocks[drawn])
+    tall = drawn & (hi - lo >= 3)
+    assert np.sum(hidden & tall) > 20 and np.sum(hidden & drawn) > 200
 
 
 def test_draw_order_takes_every_element_once_near_columns_first():

@@ -12,6 +12,7 @@ division of the chapter.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -44,6 +45,35 @@ def _prefix_sum(x):
         x = x + jnp.concatenate([pad, x[..., : n - k]], axis=-1)
         k *= 2
     return x
+
+
+def _running_sum(x):
+    """Inclusive prefix sum along axis 0 by an associative scan.
+
+    Same result as ``jnp.cumsum``, which XLA:CPU lowers to a slow reduce-window.
+    """
+    return jax.lax.associative_scan(jnp.add, x, axis=0)
+
+
+def _running_max(x):
+    """Inclusive running maximum along axis 0 (an associative scan)."""
+    return jax.lax.associative_scan(jnp.maximum, x, axis=0)
+
+
+def _compact(mask, size: int, fill):
+    """(size,) int32: the indices where the (n,) ``mask`` holds, ascending, then ``fill``.
+
+    ``jnp.nonzero(mask, size=size, fill_value=fill)`` by a running sum and a
+    scatter (``jnp.nonzero`` takes XLA:CPU's slow cumsum).
+    """
+    n = mask.shape[0]
+    pos = _running_sum(mask.astype(jnp.int32)) - 1
+    at = jnp.where(mask & (pos < size), pos, size)
+    return (
+        jnp.full((size,), fill, jnp.int32)
+        .at[at]
+        .set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    )
 
 
 def _level_tables(rle):

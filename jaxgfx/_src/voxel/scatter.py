@@ -32,10 +32,13 @@ frame whose planes have more rows than the table holds draws runs of sorted
 planes in turn (passes), each projecting only its planes' pairs.
 Elements are the same as the per-plane walk's, and every element in a crossed
 cell is projected, while the thousands of dependent one-cell steps are gone.
-Of the walk's coverage culling (4.5.4.3) a coarse form stays: a window's pair
-whose rows already hold nearer writers from the windows before writes no row
-(:func:`_hidden`), so the row work follows what is still open, as far as the
-columns' order puts near elements first.
+Of the walk's coverage culling (4.5.4.3) a coarse form stays: a pair whose
+rows already hold nearer writers writes no row (:func:`_hidden`, two reads of a
+sparse table of block maxima, whatever the pair's height).  Pairs are tested
+when their window is taken and, while a window holds more rows than a step
+draws, again before every step (tall elements: the heads' columns), so the
+row work follows what is still open, as far as the columns' order puts near
+elements first.
 
 An instance map's elements are enumerated per tile at the tile's mip level
 and gathered a chunk at a time (:mod:`.scatter_elements`), then drawn as above.
@@ -51,14 +54,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
-from jaxgfx._src.voxel.grid import _cell_height
+from jaxgfx._src.voxel.grid import _cell_height, _compact, _running_sum
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.scatter_elements import (
     _N_BITS,
     _flat_elements,
     _instance_chunk,
     _object_elements,
-    _running_sum,
     _slot_runs,
     _tile_levels,
     default_chunk,
@@ -240,23 +242,35 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     return jnp.where(seen, r1 - r0, 0), key, pl.base[ps] - offset + r0
 
 
-def _hidden(table, n_rows, key, texel0):
+def _hidden(table, n_rows, key, texel0, *, rows: int):
     """(Q,) bool: the pair's rows already hold writers in front of it, in every texel.
 
-    The window's pairs are tested against the blocks of ``_CULL_BLOCK`` texels
-    of the table so far (each block's largest key), two reads a pair: a pair
-    whose rows span at most two blocks, all of whose writers have smaller keys,
-    cannot win a texel and writes no row.  The walk's coverage test (4.5.4.3),
-    done per window instead of per cell: which pairs it catches depends on the
-    order the columns come in, what the frame shows does not.
+    The table is read in blocks of ``_CULL_BLOCK`` texels (each block's largest
+    key) through a sparse table of the blocks' running maxima over 1, 2, 4, ..
+    blocks, so a pair of any height (at most ``rows`` texels, static) costs two
+    reads: a pair all of whose blocks hold only smaller keys cannot win a texel
+    and writes no row.  The walk's coverage test (4.5.4.3), done per loop step
+    instead of per cell: which pairs it catches depends on the order the
+    columns come in, what the frame shows does not.
     """
     T = table.shape[0]
     nb = -(-T // _CULL_BLOCK)
     padded = jnp.pad(table, (0, nb * _CULL_BLOCK - T), constant_values=_NO_KEY)
-    blocks = jnp.max(padded.reshape(nb, _CULL_BLOCK), axis=1)
+    levels = [jnp.max(padded.reshape(nb, _CULL_BLOCK), axis=1)]
+    # A pair spans at most rows // _CULL_BLOCK + 2 blocks.
+    while (1 << len(levels)) < -(-rows // _CULL_BLOCK) + 2:
+        h = 1 << (len(levels) - 1)
+        last = levels[-1]
+        levels.append(jnp.maximum(last, jnp.pad(last[h:], (0, h), constant_values=_NO_KEY)))
+    sparse = jnp.concatenate(levels)
     a = jnp.clip(texel0, 0, T - 1) // _CULL_BLOCK
     b = jnp.clip(texel0 + n_rows - 1, 0, T - 1) // _CULL_BLOCK
-    return (b - a <= 1) & (jnp.maximum(blocks[a], blocks[b]) < key)
+    span = jnp.maximum(b - a + 1, 1)
+    j = 31 - jax.lax.clz(span)  # floor(log2(span))
+    j = jnp.minimum(j, len(levels) - 1)
+    lo = sparse[j * nb + a]
+    hi = sparse[j * nb + jnp.maximum(b - (1 << j) + 1, a)]
+    return (span <= 1 << len(levels)) & (jnp.maximum(lo, hi) < key)
 
 
 class _Window(NamedTuple):
@@ -382,10 +396,9 @@ def scatter_ray_buffer(
             k = s.start + slot_q - first_pair[c]
             ok = s.start + slot_q < total
             n_rows, key, texel0 = _pair_rows(rle, cam, pl, ce, e, k, ok, planes_g[c], p_lo, offset)
-            n_rows = jnp.where(_hidden(s.key, n_rows, key, texel0), 0, n_rows)
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
             writer = e if ids is None else ids[e]
-            return _Window(writer, n_rows, key, texel0, _running_sum(n_rows))
+            return _Window(writer, n_rows, key, texel0, n_rows)
 
         def body(s: _ScatterLoop) -> _ScatterLoop:
             # One loop, R rows a step: a window's pairs are taken when the rows
@@ -394,6 +407,19 @@ def scatter_ray_buffer(
             new = s.drawn >= s.window.r_incl[-1]
             w = jax.lax.cond(new, pairs, lambda s: s.window, s)
             rs = jnp.where(new, 0, s.drawn)
+
+            def cull(w: _Window) -> _Window:
+                # The pairs not begun yet, against the table so far.
+                later = w.r_incl - w.n_rows >= rs
+                hidden = later & _hidden(s.key, w.n_rows, w.key, w.texel0, rows=rows)
+                n_rows = jnp.where(hidden, 0, w.n_rows)
+                return w._replace(n_rows=n_rows, r_incl=_running_sum(n_rows))
+
+            # A new window's pairs are tested against the windows before; so
+            # are a window's pairs not begun yet while it has more than this
+            # step's rows left (tall elements: those behind the rows just
+            # drawn write none).
+            w = jax.lax.cond(new | (w.r_incl[-1] - rs > R), cull, lambda w: w, w)
             # Row ``rs + i``'s pair by a running max of marks (the first holds
             # the pair that row ``rs`` is in).
             r_first = w.r_incl - w.n_rows
@@ -411,7 +437,7 @@ def scatter_ray_buffer(
                 start=jnp.where(new, s.start + Q, s.start),
                 key=table,
                 element=element,
-                rows=s.rows + jnp.where(new, w.r_incl[-1], 0),
+                rows=s.rows + jnp.clip(w.r_incl[-1] - rs, 0, R),
                 steps=s.steps + 1,
                 window=w,
                 drawn=rs + R,
@@ -430,7 +456,7 @@ def scatter_ray_buffer(
         # work is the window's, not the scene's.
         has = n_pairs > 0
         live = jnp.arange(E) < jnp.sum(has.astype(jnp.int32))
-        order = draw[jnp.nonzero(has[draw], size=E, fill_value=0)[0]]
+        order = draw[_compact(has[draw], E, 0)]
         order = jnp.concatenate([order, pad])
         n_c = jnp.concatenate([jnp.where(live, n_pairs[order[:E]], 0), pad])
         incl = _running_sum(n_c)

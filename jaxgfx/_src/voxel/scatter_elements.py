@@ -27,6 +27,8 @@ from jaxgfx._src.voxel.grid import (
     _column_head,
     _column_runs,
     _level_tables,
+    _running_max,
+    _running_sum,
 )
 from jaxgfx._src.voxel.scatter_planes import (
     _box_corners,
@@ -55,10 +57,6 @@ def default_chunk(width: int, height: int) -> int:
     return 1 << max(14, int(np.ceil(np.log2(max(width * height, 1)))))
 
 
-def _running_max(x):
-    return jax.lax.associative_scan(jnp.maximum, x)
-
-
 def _slot_runs(first, nonempty, head, start, size: int):
     """(size,) int32: the run each of slots ``start .. start + size - 1`` lies in.
 
@@ -77,11 +75,6 @@ def _slot_runs(first, nonempty, head, start, size: int):
         .max(head)
     )
     return _running_max(mark)
-
-
-def _running_sum(x):
-    # jnp.cumsum lowers to a reduce-window that XLA:CPU runs slower than this.
-    return jax.lax.associative_scan(jnp.add, x, axis=0)
 
 
 def _object_elements(rle, cam: Camera):
