@@ -67,9 +67,7 @@ def _pixel_writer(cam: Camera, seg: Segments, buffer: RayBuffer, di):
     T, P = buffer.element.shape[0], buffer.base.shape[0]
     st, i0, cnt, row, ok = _ray_buffer_texel(cam, seg)
     plane = jnp.clip(st + jnp.clip(i0 + di, 0, jnp.maximum(cnt - 1, 0)), 0, P - 1)
-    # One gather of both words of the plane (two cost XLA:CPU twice).
-    plane_words = jnp.stack([buffer.base, buffer.rows], axis=1)[plane]
-    base, lo_hi = plane_words[..., 0] - buffer.offset, plane_words[..., 1]
+    base, lo_hi = buffer.base[plane] - buffer.offset, buffer.rows[plane]
     lo, hi = lo_hi & 0xFFFF, lo_hi >> 16
     inside = ok & (row >= lo) & (row < hi)
     e = jnp.take(buffer.element, jnp.clip(base + row, 0, T - 1))

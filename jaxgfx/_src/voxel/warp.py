@@ -27,7 +27,6 @@ from jaxgfx._src.voxel.codec import (
 from jaxgfx._src.voxel.grid import (
     _cell_height,
     _column_elements,
-    _compact,
     _dda_entry,
     _level_tables,
     _map_column,
@@ -76,13 +75,9 @@ def _texel_at(cam: Camera, seg: Segments, px, py):
     db = jnp.where(vert, dx, dy)
     pa = jnp.where(vert, py, px)
     pb = jnp.where(vert, px, py)
-    # Each segment's values by selects, not gathers (slow on XLA:CPU per pixel).
-    pick = lambda v: jnp.where(  # noqa: E731
-        vert, jnp.where(s == 0, v[0], v[1]), jnp.where(s == 2, v[2], v[3])
-    )
-    a_ref = pick((-float(H), 2.0 * H, -float(W), 2.0 * W))
+    a_ref = jnp.stack([-float(H), 2.0 * H, -float(W), 2.0 * W])[s]
     u = pb + (a_ref - pa) * _safe_div(db, da)
-    lo, hi, cnt, st = pick(seg.u_lo), pick(seg.u_hi), pick(seg.count), pick(seg.start)
+    lo, hi, cnt, st = seg.u_lo[s], seg.u_hi[s], seg.count[s], seg.start[s]
     x = (u - lo) / jnp.maximum(hi - lo, 1e-12) * cnt.astype(jnp.float32) - seg.phase
     i = jnp.clip(jnp.floor(x + 0.5).astype(jnp.int32), 0, jnp.maximum(cnt - 1, 0))
     row = jnp.floor(pa).astype(jnp.int32)
@@ -590,7 +585,7 @@ def refine_hits(
         found = found & want.ravel()
         idx = jnp.arange(n)
     else:
-        idx = _compact(want.ravel(), budget, n)
+        idx = jnp.nonzero(want.ravel(), size=budget, fill_value=n)[0]
         asked = jnp.sum(want)
 
         def walk(part):
