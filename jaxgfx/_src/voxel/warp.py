@@ -532,16 +532,6 @@ def refine_pixel(rle, origin, direction, t_start, *, steps: int):
     return found, t, cidx
 
 
-def _min3(x, axis: int):
-    """Minimum over each element and its two neighbours along ``axis`` (inf beyond)."""
-    pad = [(0, 0)] * x.ndim
-    pad[axis] = (1, 1)
-    p = jnp.pad(x, pad, constant_values=jnp.inf)
-    n = x.shape[axis]
-    at = lambda k: jax.lax.slice_in_dim(p, k, k + n, axis=axis)  # noqa: E731
-    return jnp.minimum(jnp.minimum(at(0), at(1)), at(2))
-
-
 def refine_hits(
     rle,
     cam: Camera,
@@ -573,8 +563,7 @@ def refine_hits(
         (those beyond ``budget`` keep the warp's result).
     """
     H, W = depth.shape
-    # The 3x3 minimum as two 3-tap passes of shifts (XLA:CPU's reduce-window is slow).
-    near = _min3(_min3(depth, 0), 1)
+    near = jax.lax.reduce_window(depth, jnp.inf, jax.lax.min, (3, 3), (1, 1), "SAME")
     origins, dirs = pixel_rays(cam, normalize=False)
     start = jnp.where(jnp.isfinite(near), jnp.maximum(near - margin, 0.0), 0.0)
     want = jnp.isfinite(near) if mask is None else mask & jnp.isfinite(near)
