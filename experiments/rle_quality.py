@@ -19,6 +19,8 @@ three far ones (256 x 192, the distance set so that the object covers about
 600 / 1,500 / 4,000 pixels), with the frame's drawn elements, those its lists
 lost (``overflow``) and its passes over the element pool.  ``--quick``: one
 near and one far camera of the small scene at the quick frame size.
+``--oversample`` and ``--planes-per-voxel`` check other plane densities than
+the defaults (the acceptance is measured with the defaults).
 
 Usage::
 
@@ -125,6 +127,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "narrow", "scatter"),
                     help="RenderSettings.traversal of the renders checked")  # fmt: skip
+    ap.add_argument("--oversample", type=float, default=None,
+                    help="RenderSettings.oversample of the renders checked")  # fmt: skip
+    ap.add_argument("--planes-per-voxel", type=float, default=None,
+                    help="RenderSettings.planes_per_voxel of the renders checked")  # fmt: skip
     args = ap.parse_args(argv)
     w, h = (96, 72) if args.quick else (256, 192)
     res = 48 if args.quick else 128
@@ -141,7 +147,10 @@ def main(argv=None) -> int:
     X, Y, Z = vox.shape
     c = np.array([X / 2, Y / 2, Z / 2])
     eye = c + np.array([0.55 * X, 0.2 * Y, 0.6 * Z])
-    settings = RC.RenderSettings(traversal=args.traversal)
+    tuned = dict(oversample=args.oversample, planes_per_voxel=args.planes_per_voxel)
+    settings = RC.RenderSettings(
+        traversal=args.traversal, **{k: v for k, v in tuned.items() if v is not None}
+    )
     render = jax.jit(lambda r, c: RC.render_rle(r, c, settings=settings))
     shaded = jax.jit(
         lambda cam, col, dep: post.shade(

@@ -476,26 +476,19 @@ def test_shared_columns_render_bit_identical():
     plain = V.encode_rle(vox, levels=2)
     shared = V.share_columns(plain)
     assert len(shared.colors) < 0.3 * len(plain.colors), (shared.colors.shape, plain.colors.shape)
-    # Pad to the plain buffers' sizes (the tails are unread): the renderer traces twice (the
-    # shared flag is static) to the same program, which compiles once (the persistent cache).
-    shared = dataclasses.replace(
-        shared,
-        elements=np.resize(shared.elements, plain.elements.shape),
-        colors=np.resize(shared.colors, plain.colors.shape),
-        tail_sums=np.pad(
-            shared.tail_sums, ((0, 0), (0, plain.tail_sums.shape[1] - shared.tail_sums.shape[1]))
-        ),
-    )
     cam = look_at([80, 45, -30], [26, 8, 26], fov=55, width=W, height=H)
-    # The one-cell walk (what the default draws a shared volume with: the
-    # scatter lists each stored element in one column).
-    a = render(V.as_jax(plain), cam, settings=NARROW)
-    b = render(V.as_jax(shared), cam, settings=NARROW)
-    with pytest.raises(ValueError, match="share_columns"):
-        RC.render_rle(V.as_jax(shared), cam, settings=RC.RenderSettings(traversal="scatter"))
+    # The default, the scatter: a shared tail is enumerated for every column
+    # that reaches it, in the columns' order, so the writers are the plain
+    # volume's element for element (the two programs differ, so the depths
+    # may round apart by an ulp).
+    a = render(V.as_jax(plain), cam, settings=SCATTER)
+    b = render(V.as_jax(shared), cam, settings=SCATTER)
     assert np.isfinite(np.asarray(a.depth)).mean() > 0.1
-    np.testing.assert_array_equal(np.asarray(b.depth), np.asarray(a.depth))
+    np.testing.assert_array_equal(np.isfinite(b.depth), np.isfinite(a.depth))
+    np.testing.assert_allclose(np.asarray(b.depth), np.asarray(a.depth), rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(b.color), np.asarray(a.color))
+    for k in ("elements_total", "elements_processed", "elements_rendered"):
+        assert int(b.stats[k]) == int(a.stats[k]), k
 
 
 def test_encoded_volume_closed_over_under_jit():
@@ -878,9 +871,6 @@ def test_scatter_draws_instance_maps_as_the_walk_and_batches_them():
 
 
 def test_scatter_traversal_rejects_what_it_cannot_draw(scene):
-    shared = V.share_columns(V.encode_rle(_scene(), levels=1))
-    with pytest.raises(ValueError, match="tails of their own"):
-        RC.render_rle(shared, CAMERAS[2][1], settings=SCATTER)
     with pytest.raises(ValueError, match="texels must be at least two ray-buffer columns"):
         RC.render_rle(scene[1], CAMERAS[2][1], settings=dataclasses.replace(SCATTER, texels=W))
 

@@ -89,6 +89,9 @@ class RLEVolume:
         shared_tails: static; True where columns may share their stored tails
             (:func:`share_columns`), so ``elements`` holds fewer elements than the
             columns reach.
+        column_tails: static; the tail elements the columns reach, shared ones
+            counted once per column (None: ``len(elements)``, each stored element
+            in one column).
     """
 
     first: Array
@@ -107,6 +110,7 @@ class RLEVolume:
     voxel_counts: tuple = static_field()
     column_mips: bool = static_field(default=False)
     shared_tails: bool = static_field(default=False)
+    column_tails: int | None = static_field(default=None)
 
     @property
     def levels(self) -> int:
@@ -528,6 +532,7 @@ def share_columns(rle: RLEVolume) -> RLEVolume:
         empty_dist=np.asarray(rle.empty_dist),
         tail_sums=_tail_sums(rle.count, new_ptr, els_all),
         shared_tails=True,
+        column_tails=int(np.maximum(count - 1, 0).sum()),
     )
 
 

@@ -70,9 +70,7 @@ def _compact(mask, size: int, fill):
     pos = _running_sum(mask.astype(jnp.int32)) - 1
     at = jnp.where(mask & (pos < size), pos, size)
     return (
-        jnp.full((size,), fill, jnp.int32)
-        .at[at]
-        .set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+        jnp.full((size,), fill, jnp.int32).at[at].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
     )
 
 

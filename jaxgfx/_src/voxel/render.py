@@ -165,8 +165,8 @@ def render_rle(
     them as one wider frame, a batch taking about its slowest frame's dependent
     loop steps.  The default ``traversal`` scatters the map's elements (an
     instance map's: each tile's, at the tile's mip level) into the planes
-    (:mod:`.scatter`, every platform); a volume from
-    :func:`~jaxgfx.raycast.share_columns` takes the one-cell walk
+    (:mod:`.scatter`, every platform); a map beyond its limits
+    (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`) takes the one-cell walk
     (:mod:`.traverse`) on the CPU and the wide-step walk (:mod:`.wide`) elsewhere.
 
     The depth is differentiable w.r.t. the camera: the traversal's choices are

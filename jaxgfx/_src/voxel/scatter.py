@@ -139,18 +139,11 @@ def rows_per_pair(*, accelerator: bool = False) -> int:
 def scatter_limits(rle, num_planes: int) -> str | None:
     """Why :func:`scatter_ray_buffer` cannot draw a scene, or None.
 
-    A map whose columns own their tails (not :func:`~jaxgfx.raycast.share_columns`'),
-    below 8192 columns a side, 4096 voxels high, 8 levels and 64 elements a
-    column (its packed words), with fewer than ``2^31`` element instances (an
-    instance map's tiles times the object's elements), seen through fewer than
-    32767 planes.
+    A map below 8192 columns a side, 4096 voxels high, 8 levels and 64 elements
+    a column (its packed words), with fewer than ``2^31`` element instances (an
+    instance map's tiles times the object's elements, a tail that columns share
+    counted once per column), seen through fewer than 32767 planes.
     """
-    if rle.shared_tails:
-        # Its elements are listed once per stored element, each in one column.
-        return (
-            "traversal='scatter' draws columns with tails of their own; a volume from "
-            "share_columns needs traversal='narrow' or 'wide'"
-        )
     X, Y, Z = rle.shape
     if max(X, Z) >= 1 << _XZ_BITS or Y >= 1 << _H_BITS or rle.levels > 8:
         return (
@@ -161,7 +154,8 @@ def scatter_limits(rle, num_planes: int) -> str | None:
         return f"traversal='scatter' takes columns of at most 64 elements, got {rle.max_elements}"
     if num_planes >= 1 << _N_BITS:
         return f"traversal='scatter' takes at most {(1 << _N_BITS) - 1} planes, got {num_planes}"
-    n = int(np.prod(rle.tiles.shape)) * (rle.count.shape[0] + rle.elements.shape[0])
+    tails = rle.elements.shape[0] if rle.column_tails is None else rle.column_tails
+    n = int(np.prod(rle.tiles.shape)) * (rle.count.shape[0] + tails)
     if n >= 1 << 31:
         return f"traversal='scatter' takes fewer than 2^31 element instances, got {n}"
     return None

@@ -73,8 +73,7 @@ class RenderSettings:
             what an accelerator needs, as each step is a kernel launch there);
             ``"scatter"``: every element projected into the planes that cross its
             cell, each texel keeping its first writer by a scatter-min of the
-            walk order (:mod:`~jaxgfx._src.voxel.scatter`: a few wide steps;
-            not for :func:`~jaxgfx.raycast.share_columns`' volumes).
+            walk order (:mod:`~jaxgfx._src.voxel.scatter`: a few wide steps).
             ``"auto"`` (default): ``"scatter"`` for a map within its
             limits (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`), on every
             platform; otherwise ``"narrow"`` where the program is lowered for the
