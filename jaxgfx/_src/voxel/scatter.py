@@ -392,6 +392,7 @@ def scatter_ray_buffer(
             n_rows, key, texel0 = _pair_rows(rle, cam, pl, ce, e, k, ok, planes_g[c], p_lo, offset)
             n_rows, key, texel0 = jax.lax.optimization_barrier((n_rows, key, texel0))
             writer = e if ids is None else ids[e]
+            # ``r_incl`` (here: no pair begun) is set by the coverage test that follows.
             return _Window(writer, n_rows, key, texel0, n_rows)
 
         def body(s: _ScatterLoop) -> _ScatterLoop:
