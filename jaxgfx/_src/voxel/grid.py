@@ -74,6 +74,11 @@ def _compact(mask, size: int, fill):
     )
 
 
+def _tail_slots(rle) -> int:
+    """Static count of the tail elements the columns reach, a shared tail once per column."""
+    return rle.elements.shape[0] if rle.column_tails is None else rle.column_tails
+
+
 def _level_tables(rle):
     """``(levels, pointer-map offset, X, Y, Z)`` of every mip level, int32 arrays."""
     L = rle.levels

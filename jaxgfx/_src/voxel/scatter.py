@@ -54,7 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
-from jaxgfx._src.voxel.grid import _cell_height, _compact, _running_sum
+from jaxgfx._src.voxel.grid import _cell_height, _compact, _running_sum, _tail_slots
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.scatter_elements import (
     _N_BITS,
@@ -154,8 +154,7 @@ def scatter_limits(rle, num_planes: int) -> str | None:
         return f"traversal='scatter' takes columns of at most 64 elements, got {rle.max_elements}"
     if num_planes >= 1 << _N_BITS:
         return f"traversal='scatter' takes at most {(1 << _N_BITS) - 1} planes, got {num_planes}"
-    tails = rle.elements.shape[0] if rle.column_tails is None else rle.column_tails
-    n = int(np.prod(rle.tiles.shape)) * (rle.count.shape[0] + tails)
+    n = int(np.prod(rle.tiles.shape)) * (rle.count.shape[0] + _tail_slots(rle))
     if n >= 1 << 31:
         return f"traversal='scatter' takes fewer than 2^31 element instances, got {n}"
     return None

@@ -29,6 +29,7 @@ from jaxgfx._src.voxel.grid import (
     _level_tables,
     _running_max,
     _running_sum,
+    _tail_slots,
 )
 from jaxgfx._src.voxel.scatter_planes import (
     _box_corners,
@@ -87,24 +88,18 @@ def _object_elements(rle, cam: Camera):
     C = rle.count.shape[0]
     ix_c, iz_c, lev_c = (jnp.asarray(a) for a in _column_cells(rle))
     cnt = rle.count.astype(jnp.int32)
+    NT = _tail_slots(rle)
     if rle.column_tails is None:
         # Each stored tail element in one column: the columns' tails are the
         # stored ones, in the pointers' order.
-        NT = rle.elements.shape[0]
         start = rle.ptr.astype(jnp.int32)
     else:
         # Columns sharing a stored tail (share_columns): each column's tail is
         # enumerated for it, the columns' tails back to back.
-        NT = rle.column_tails
         tails = jnp.maximum(cnt - 1, 0)
         start = _running_sum(tails) - tails
-    # Tail slot i belongs to the column whose first slot is the last at or before it.
-    mark = (
-        jnp.full((NT,), -1, jnp.int32)
-        .at[jnp.where(cnt >= 2, start, NT)]
-        .max(jnp.arange(C, dtype=jnp.int32), mode="drop")
-    )
-    owner = jnp.clip(_running_max(mark), 0, C - 1)
+    # Tail slot i lies in the run of the column whose first slot is the last at or before it.
+    owner = jnp.clip(_slot_runs(start, cnt >= 2, 0, 0, NT), 0, C - 1)
     col = jnp.concatenate([jnp.arange(C, dtype=jnp.int32), owner])
     j = jnp.concatenate(
         [jnp.zeros((C,), jnp.int32), jnp.arange(NT, dtype=jnp.int32) - start[owner] + 1]
