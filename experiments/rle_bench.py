@@ -15,7 +15,9 @@ included.  Beside it: the wide traversals, the one-cell walk (``walk_*``), and
 the one-cell walk with one element pool for the most a frame can draw
 (``one_pool``, a single pass; the walk's pool is bounded and a frame that draws
 more takes more ``passes``), their frames taking turns with the default's
-(``ab_ours_ms``, ``ab_walk_ms``, ``one_pool_ms``).  On an accelerator the
+(``ab_ours_ms``, ``ab_walk_ms``, ``one_pool_ms``), and the default with the
+walk's per-pixel re-walk, which the scatter leaves off (``rewalk_ms``,
+``RenderSettings(refine_steps=16)``).  On an accelerator the
 walk beside the default is the wide traversal (the renderer's walk there), and
 the CPU's variants (plane slots, one pool, the thesis's settings) are
 left out.
@@ -83,6 +85,7 @@ WIDE = RC.RenderSettings(traversal="wide")
 WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
 # The one-cell walk (the scatter draws every map by default).
 WALK = RC.RenderSettings(traversal="narrow")
+REWALK = RC.RenderSettings(refine_steps=16)
 
 
 def one_pool(w: int, h: int) -> RC.RenderSettings:
@@ -367,6 +370,9 @@ def run(args):
                 fns = {"ours": f_ours}
                 if one_object:
                     fns["walk"] = lambda c, r=rle: render(r, c, settings=walk)
+                    # The scatter's frame with the walk's per-pixel re-walk
+                    # (RenderSettings.refine_steps, which the scatter leaves off).
+                    fns["rewalk"] = lambda c, r=rle: render(r, c, settings=REWALK)
                 if cpu:
                     p1 = one_pool(*cams[0].shape[::-1])
                     fns["one_pool"] = lambda c, r=rle, st=p1: render(r, c, settings=st)
@@ -377,6 +383,9 @@ def run(args):
                 row["ab_ours_ms"] = round(1e3 * t_ab["ours"], 1)
                 row["ab_walk_ms"] = round(1e3 * t_walk, 1)
                 row["ab_ours/walk"] = round(t_ab["ours"] / t_walk, 2)
+                if "rewalk" in t_ab:
+                    row["rewalk_ms"] = round(1e3 * t_ab["rewalk"], 1)
+                    row["ab_ours/rewalk"] = round(t_ab["ours"] / t_ab["rewalk"], 2)
                 if "one_pool" in t_ab:
                     row["one_pool_ms"] = round(1e3 * t_ab["one_pool"], 1)
                     row["one_pool/walk"] = round(t_ab["one_pool"] / t_walk, 2)
@@ -656,6 +665,7 @@ def main(argv=None) -> int:
           "Melem_per_s", "iters", "wide_ms", "wide_iters",
           "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "walk_ms",
           "walk_iters", "walk_same_hits", "ab_ours_ms", "ab_walk_ms", "ab_ours/walk",
+          "rewalk_ms", "ab_ours/rewalk",
           "one_pool_ms", "one_pool/walk", "thesis_ms",
           "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
           "mesh/ours", "embree_faces_ms", "ours/embree_faces", "walk/embree_faces",

@@ -20,7 +20,8 @@ three far ones (256 x 192, the distance set so that the object covers about
 lost (``overflow``) and its passes over the element pool.  ``--quick``: one
 near and one far camera of the small scene at the quick frame size.
 ``--oversample`` and ``--planes-per-voxel`` check other plane densities than
-the defaults (the acceptance is measured with the defaults).
+the defaults, ``--refine-steps`` the per-pixel re-walk (the acceptance is
+measured with the defaults).
 
 Usage::
 
@@ -131,6 +132,8 @@ def main(argv=None) -> int:
                     help="RenderSettings.oversample of the renders checked")  # fmt: skip
     ap.add_argument("--planes-per-voxel", type=float, default=None,
                     help="RenderSettings.planes_per_voxel of the renders checked")  # fmt: skip
+    ap.add_argument("--refine-steps", type=int, default=None,
+                    help="RenderSettings.refine_steps of the renders checked")  # fmt: skip
     args = ap.parse_args(argv)
     w, h = (96, 72) if args.quick else (256, 192)
     res = 48 if args.quick else 128
@@ -139,15 +142,24 @@ def main(argv=None) -> int:
 
         m = trimesh.load(DATA / "meshes" / "bun_zipper_res2.ply", process=False)
         vox = RC.voxelize_mesh(m.vertices, m.faces, res)
+        # The mesh has no colours: a colour ramp over the box, so that the raw
+        # frames show which voxel each pixel took, not one flat silhouette.
+        ramp = 60 + 170 * np.asarray(vox.coords, np.float64) / np.asarray(vox.shape)
+        vox = RC.make_voxels(vox.coords, ramp.astype(np.uint8), vox.shape)
         name = f"bunny R={res}"
     else:
         vox = RC.procedural_tree(res, key=jax.random.key(0))
         name = f"tree R={res}"
-    rle = RC.as_jax(RC.encode_rle(vox))
     X, Y, Z = vox.shape
+    rle = RC.as_jax(RC.encode_rle(vox))
     c = np.array([X / 2, Y / 2, Z / 2])
-    eye = c + np.array([0.55 * X, 0.2 * Y, 0.6 * Z])
-    tuned = dict(oversample=args.oversample, planes_per_voxel=args.planes_per_voxel)
+    # Close, with the whole object in the frame.
+    eye = c + np.array([0.85 * X, 0.3 * Y, 0.95 * Z])
+    tuned = dict(
+        oversample=args.oversample,
+        planes_per_voxel=args.planes_per_voxel,
+        refine_steps=args.refine_steps,
+    )
     settings = RC.RenderSettings(
         traversal=args.traversal, **{k: v for k, v in tuned.items() if v is not None}
     )

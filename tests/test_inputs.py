@@ -126,6 +126,11 @@ BAD = {
         ValueError,
         "neighbors",
     ),
+    "RenderSettings refine_steps -1": (
+        lambda: raycast.RenderSettings(refine_steps=-1),
+        ValueError,
+        "refine_steps",
+    ),
     # skinning
     "LBS joints out of range": (
         lambda: skin.linear_blend_skinning(*_with(_lbs_args(), 3, _lbs_args()[3] + 3)),

@@ -724,7 +724,7 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene, user_jit):
     exact = user_jit(RC.render_rle)
     # lod_distance passed every time: one program per traversal for both parts.
     inf = np.float32(np.inf)
-    walks = {}
+    walks, rewalked = {}, []
     for name, cam in CAMERAS:
         # The user's code generation: the windows' frames below are compared bit for bit.
         out = exact(rle, cam, settings=SCATTER, lod_distance=inf)
@@ -744,11 +744,16 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene, user_jit):
         # A few wide steps: windows of pairs, their rows a window at a time.
         assert 1 <= st["traversal_steps"] <= 8, (name, st)
         assert st["elements_total"] >= int(walk.stats["elements_processed"]) > 0
+        # The scatter's warp needs no re-walk (RenderSettings.refine_steps); the
+        # walk's lists keep theirs.
+        assert st["refined"] == 0, (name, st)
+        rewalked.append(int(walk.stats["refined"]))
         many = exact(rle, cam, settings=small, lod_distance=inf)
         np.testing.assert_array_equal(np.asarray(many.depth), d1)
         np.testing.assert_array_equal(np.asarray(many.color), np.asarray(out.color))
         assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
         assert int(many.stats["passes"]) > max(4, st["passes"]), name
+    assert max(rewalked) > 0, rewalked
     # Mip level 1 from 8 voxels on: the level switch (in closed form per plane)
     # is the walk's, so the frames stay the walk's.
     for name, cam in (CAMERAS[2], CAMERAS[4]):

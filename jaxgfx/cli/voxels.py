@@ -553,9 +553,9 @@ def register(subparsers) -> None:
                    help="distance where mip level 1 starts, level l at lod * 2^(l-1) "
                    "(0: level 0 only; 2 x the focal length in pixels keeps mip cells "
                    "about a pixel wide: jaxgfx.raycast.lod_distance_for)")  # fmt: skip
-    r.add_argument("--refine", type=nonnegative_int, default=16,
+    r.add_argument("--refine", type=nonnegative_int, default=None,
                    help="exact re-walk steps for pixels whose ray met no sampled voxel "
-                   "(0: off)")  # fmt: skip
+                   "(0: off; default: RenderSettings.refine_steps' choice)")  # fmt: skip
     r.add_argument("--oversample", type=bounded_float(0.0, math.inf, open_interval=True),
                    default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip

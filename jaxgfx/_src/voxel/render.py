@@ -186,10 +186,11 @@ def render_rle(
     (``planes_per_voxel``: without them the agreement falls with the distance), (b) an
     exact test of the pixel's own ray against the elements of the adjacent
     planes' texels (:func:`warp_lists`: only screen tiles that a drawn element
-    covers are warped), and (c) a short exact re-walk
-    (:func:`refine_hits`) only for pixels whose ray entered none of those
-    elements, at most ``refine_budget`` of them.  Elements are still
-    processed once per plane, never per pixel.
+    covers are warped), and (c) for the walk's and the wide traversal's
+    lists, a short exact re-walk (:func:`refine_hits`) only for pixels whose
+    ray entered none of those elements, at most ``refine_budget`` of them (the
+    scatter's warp needs none: ``RenderSettings.refine_steps``).  Elements are
+    still processed once per plane, never per pixel.
 
     Args:
         rle: the scene; NumPy buffers (from :func:`~jaxgfx.raycast.encode_rle`) work,
@@ -425,6 +426,8 @@ def _finish_frame(
     refined = jnp.int32(0)
     refine_steps_taken = jnp.int32(0)
     refine_steps = s.refine_steps
+    if refine_steps is None:
+        refine_steps = 0 if s.traversal == "scatter" else 16
     budget = (W * H) // 32 if s.refine_budget is None else s.refine_budget
     if refine_steps > 0:
         batch = budget if batched else 1024

@@ -51,9 +51,15 @@ class RenderSettings:
             draw (47 MB at 512x384 with 2x1 AA) cost every frame its clearing and,
             on the CPU, the first touch of its pages (``rle_bench``'s ``one_pool``
             columns).
-        refine_steps: if > 0 (default 16), pixels whose ray entered no candidate
-            element re-walk their own ray that many voxels from just before the
-            neighbourhood's depth (not in the thesis).
+        refine_steps: if > 0, pixels whose ray entered no candidate element
+            re-walk their own ray that many voxels from just before the
+            neighbourhood's depth (not in the thesis).  None (default): 16 for
+            the walk's and the wide traversal's lists, 0 for the scatter, whose
+            warp tests every pixel against the writers of three planes a
+            fraction of a voxel apart: there the re-walk moved the acceptance
+            views' agreement by tenths of a per cent and cost a tenth of a
+            frame (``experiments.rle_quality --refine-steps 16``, the design
+            notes).
         neighbors: adjacent planes on each side whose texels the warp tests against
             the pixel's ray (default 1; 0 = thesis).
         refine_budget: largest number of re-walked pixels (None: ``W H / 32``); see
@@ -106,7 +112,7 @@ class RenderSettings:
     oversample: float = static_field(2.0)
     buffer_size: int | None = static_field(None)
     pool_size: int | None = static_field(None)
-    refine_steps: int = static_field(16)
+    refine_steps: int | None = static_field(None)
     neighbors: int = static_field(1)
     refine_budget: int | None = static_field(None)
     elements_per_step: int = static_field(4)
@@ -128,7 +134,7 @@ class RenderSettings:
             oversample=check_float("oversample", self.oversample),
             buffer_size=_optional_int("buffer_size", self.buffer_size, 1),
             pool_size=_optional_int("pool_size", self.pool_size, 1),
-            refine_steps=check_int("refine_steps", self.refine_steps, low=0),
+            refine_steps=_optional_int("refine_steps", self.refine_steps, 0),
             neighbors=check_int("neighbors", self.neighbors, low=0),
             refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
             elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
