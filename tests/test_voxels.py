@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import struct
+import types
 
 import jax
 import numpy as np
@@ -760,6 +761,45 @@ def test_coverage_test_leaves_out_exactly_the_pairs_behind_every_block_they_reac
     np.testing.assert_array_equal(hidden[drawn], blocks[drawn])
     tall = drawn & (hi - lo >= 3)
     assert np.sum(hidden & tall) > 20 and np.sum(hidden & drawn) > 200
+
+
+def test_plane_rank_is_searchsorted_over_the_live_planes():
+    """The bucketed search gives ``searchsorted``'s ranks on either side, for
+    crowded buckets, repeated angles, planes without rows and queries outside
+    the planes' range."""
+    from jaxgfx._src.voxel.scatter_planes import _plane_buckets, _plane_rank
+
+    rng = np.random.default_rng(5)
+    # Dense near one angle (many planes a bucket), repeats, sparse elsewhere.
+    live = np.sort(
+        np.concatenate(
+            [rng.uniform(-1.5, 1.9, 300), 0.3 + 1e-4 * rng.random(200), np.full(7, -0.25)]
+        )
+    ).astype(np.float32)
+    angle = np.concatenate([live, np.full(93, np.inf, np.float32)])
+    q = np.concatenate(
+        [
+            rng.uniform(-2.0, 2.0, 3000),
+            live[rng.integers(0, live.size, 500)],
+            [-2.0, 2.0, live[0], live[-1], np.inf, -np.inf, 0.3],
+        ]
+    ).astype(np.float32)
+
+    @jax.jit
+    def ranks(angle, n_live, q):
+        bucket, frame, steps = _plane_buckets(angle, n_live)
+        pl = types.SimpleNamespace(
+            angle=angle, n_live=n_live, bucket=bucket, bucket_frame=frame, bucket_steps=steps
+        )
+        right = np.array([False, True])[:, None]
+        return _plane_rank(pl, jax.numpy.stack([q, q]), right), steps
+
+    got, steps = ranks(angle, np.int32(live.size), q)
+    np.testing.assert_array_equal(np.asarray(got[0]), np.searchsorted(live, q, "left"))
+    np.testing.assert_array_equal(np.asarray(got[1]), np.searchsorted(live, q, "right"))
+    assert 4 <= int(steps) < 10, int(steps)  # the crowded bucket, not log2 of all planes
+    none = ranks(np.full(600, np.inf, np.float32), np.int32(0), q)[0]
+    assert not np.any(np.asarray(none))
 
 
 def test_draw_order_takes_every_element_once_near_columns_first():

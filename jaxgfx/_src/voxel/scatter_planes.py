@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
+from jaxgfx._src.voxel.grid import _running_sum
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.traverse import _plane_init
 from jaxgfx._src.voxel.walk import _cell_exit, _once
@@ -42,6 +43,12 @@ class _Planes(NamedTuple):
     packed: jax.Array
     # (2, K, levels, P) float32 t_level's min / max sparse tables (K = 1 for one level)
     stretch: jax.Array
+    # The live angles' range cut into B equal buckets (_plane_rank): (B + 1,) int32
+    # live planes below each bucket; (3,) float32 the range's least angle, buckets
+    # per unit of angle, its greatest angle; () int32 search steps a bucket needs
+    bucket: jax.Array
+    bucket_frame: jax.Array
+    bucket_steps: jax.Array
 
 
 def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) -> _Planes:
@@ -117,6 +124,7 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
             prev = tab[-1]
             shifted = jnp.concatenate([prev[:, h:], jnp.full((L, h), fill, jnp.float32)], axis=1)
             tab.append(op(prev, shifted))
+    bucket, frame, steps = _plane_buckets(angle[order], jnp.sum(live.astype(jnp.int32)))
     return _Planes(
         angle=angle[order],
         n_live=jnp.sum(live.astype(jnp.int32)),
@@ -128,7 +136,69 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
         plane_rows=_once(c0.lo | ((c0.lo + n_rows[position]) << 16)),
         packed=_once_f(packed),
         stretch=jnp.stack([jnp.stack(tabs[0]), jnp.stack(tabs[1])]),
+        bucket=bucket,
+        bucket_frame=frame,
+        bucket_steps=steps,
     )
+
+
+def _plane_buckets(angle, n_live):
+    """The sorted live angles' range in ``2 P`` equal buckets, for :func:`_plane_rank`.
+
+    Returns ``(bucket, frame, steps)``: (B + 1,) int32 the live planes whose
+    bucket lies below each one (``bucket[B] = n_live``); (3,) float32 the least
+    live angle, buckets per unit of angle and the greatest live angle; ()
+    int32 the binary-search steps the fullest bucket needs.
+    """
+    P = angle.shape[0]
+    B = 2 * P
+    live = jnp.arange(P) < n_live
+    a_lo = jnp.where(n_live > 0, angle[0], 0.0)
+    a_hi = jnp.where(n_live > 0, angle[jnp.maximum(n_live - 1, 0)], 0.0)
+    scale = B / jnp.maximum(a_hi - a_lo, 1e-30)
+    frame = jnp.stack([a_lo, scale, a_hi]).astype(jnp.float32)
+    k = _bucket_of(frame, angle, B)
+    counts = jnp.zeros((B,), jnp.int32).at[jnp.where(live, k, B)].add(1, mode="drop")
+    bucket = jnp.concatenate([jnp.zeros((1,), jnp.int32), _running_sum(counts)])
+    steps = 32 - jax.lax.clz(jnp.max(counts))  # bit length: ceil(log2(count + 1))
+    return bucket, frame, steps
+
+
+def _bucket_of(frame, a, B: int):
+    """Bucket of angles ``a`` (clipped to the range's): the planes' and the queries' alike."""
+    k = jnp.floor((jnp.clip(a, frame[0], frame[2]) - frame[0]) * frame[1])
+    return jnp.clip(k, 0, B - 1).astype(jnp.int32)
+
+
+def _plane_rank(pl: _Planes, q, right):
+    """``searchsorted(pl.angle[:n_live], q, side)``, ``side`` "right" where ``right``.
+
+    A query's rank lies between its bucket's first plane and the next bucket's
+    (the same monotone bucket function for planes and queries), so a binary
+    search over that bucket alone settles it: ``pl.bucket_steps`` steps, a few
+    where ``jnp.searchsorted`` takes ``log2 P`` (each a pass over the queries).
+
+    Args:
+        q: (...) float32 angles; right: bool, broadcastable to ``q``.
+
+    Returns:
+        (...) int32.
+    """
+    B = pl.bucket.shape[0] - 1
+    k = _bucket_of(pl.bucket_frame, q, B)
+    lo, hi = pl.bucket[k], pl.bucket[k + 1]
+    below = q < pl.bucket_frame[0]
+    above = (q > pl.bucket_frame[2]) | (right & (q == pl.bucket_frame[2]))
+
+    def step(_, c):
+        lo, hi = c
+        mid = (lo + hi) >> 1
+        a = pl.angle[jnp.minimum(mid, pl.angle.shape[0] - 1)]
+        go = (lo < hi) & ((a < q) | (right & (a == q)))
+        return jnp.where(go, mid + 1, lo), jnp.where(go | (lo >= hi), hi, mid)
+
+    lo, _ = jax.lax.fori_loop(0, pl.bucket_steps, step, (lo, hi))
+    return jnp.where(below, 0, jnp.where(above, pl.n_live, lo))
 
 
 def _column_cells(rle):
@@ -208,9 +278,11 @@ def _box_planes(rle, pl: _Planes, corner, x0, z0, x1, z1, lev):
     wrap = (a1 - a0) > 2.0
     w0 = jnp.min(jnp.where(corner >= 0, corner, np.inf), axis=0)
     w1 = jnp.max(jnp.where(corner < 0, corner, -np.inf), axis=0)
-    lo1 = jnp.searchsorted(pl.angle, jnp.where(wrap, w0, a0), side="left").astype(jnp.int32)
-    hi1 = jnp.searchsorted(pl.angle, jnp.where(wrap, 2.0, a1), side="right").astype(jnp.int32)
-    hi2 = jnp.where(wrap, jnp.searchsorted(pl.angle, w1, side="right").astype(jnp.int32), 0)
+    # The three searches as one (the left one first).
+    q = jnp.stack([jnp.where(wrap, w0, a0), jnp.where(wrap, 2.0, a1), w1])
+    right = jnp.asarray([False, True, True]).reshape((3,) + (1,) * (q.ndim - 1))
+    lo1, hi1, hi2 = _plane_rank(pl, q, right)
+    hi2 = jnp.where(wrap, hi2, 0)
     # The eye's own box: every plane starts in it.
     eye = (x0 <= 0) & (x1 >= 0) & (z0 <= 0) & (z1 >= 0)
     if rle.levels > 1:
