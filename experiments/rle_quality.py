@@ -152,9 +152,9 @@ def main(argv=None) -> int:
         name = f"tree R={res}"
     X, Y, Z = vox.shape
     rle = RC.as_jax(RC.encode_rle(vox))
-    c = np.array([X / 2, Y / 2, Z / 2])
+    c = np.array([X / 2, 0.42 * Y, Z / 2])
     # Close, with the whole object in the frame.
-    eye = c + np.array([0.85 * X, 0.3 * Y, 0.95 * Z])
+    eye = c + np.array([1.05 * X, 0.3 * Y, 1.15 * Z])
     tuned = dict(
         oversample=args.oversample,
         planes_per_voxel=args.planes_per_voxel,

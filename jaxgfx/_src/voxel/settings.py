@@ -57,9 +57,9 @@ class RenderSettings:
             the walk's and the wide traversal's lists, 0 for the scatter, whose
             warp tests every pixel against the writers of three planes a
             fraction of a voxel apart: there the re-walk moved the acceptance
-            views' agreement by tenths of a per cent and cost a tenth of a
-            frame (``experiments.rle_quality --refine-steps 16``, the design
-            notes).
+            views' agreement by at most 0.2 points and cost 7-20 % of a frame
+            (``experiments.rle_quality --refine-steps 16``, ``rle_bench``'s
+            ``rewalk_ms``).
         neighbors: adjacent planes on each side whose texels the warp tests against
             the pixel's ray (default 1; 0 = thesis).
         refine_budget: largest number of re-walked pixels (None: ``W H / 32``); see
