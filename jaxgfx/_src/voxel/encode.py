@@ -86,12 +86,9 @@ class RLEVolume:
         column_mips: static; False: level ``l``'s cells are cubes of ``2^l`` voxels (the
             thesis's mips); True: columns ``2^l`` voxels wide and one voxel high, so every
             level keeps the exact heights (:func:`encode_rle`'s ``mips="column"``).
-        shared_tails: static; True where columns may share their stored tails
-            (:func:`share_columns`), so ``elements`` holds fewer elements than the
-            columns reach.
         column_tails: static; the tail elements the columns reach, shared ones
             counted once per column (None: ``len(elements)``, each stored element
-            in one column).
+            in one column; set by :func:`share_columns`, see ``shared_tails``).
     """
 
     first: Array
@@ -109,12 +106,17 @@ class RLEVolume:
     max_elements: int = static_field()
     voxel_counts: tuple = static_field()
     column_mips: bool = static_field(default=False)
-    shared_tails: bool = static_field(default=False)
     column_tails: int | None = static_field(default=None)
 
     @property
     def levels(self) -> int:
         return len(self.level_shapes)
+
+    @property
+    def shared_tails(self) -> bool:
+        """True where columns may share their stored tails (:func:`share_columns`), so
+        ``elements`` holds fewer elements than the columns reach (``column_tails``)."""
+        return self.column_tails is not None
 
 
 def empty_space_distance(occupied: np.ndarray, *, periodic: bool = False, cap: int = 255):
@@ -531,7 +533,6 @@ def share_columns(rle: RLEVolume) -> RLEVolume:
         tiles=np.asarray(rle.tiles),
         empty_dist=np.asarray(rle.empty_dist),
         tail_sums=_tail_sums(rle.count, new_ptr, els_all),
-        shared_tails=True,
         column_tails=int(np.maximum(count - 1, 0).sum()),
     )
 

@@ -124,10 +124,11 @@ def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) ->
             prev = tab[-1]
             shifted = jnp.concatenate([prev[:, h:], jnp.full((L, h), fill, jnp.float32)], axis=1)
             tab.append(op(prev, shifted))
-    bucket, frame, steps = _plane_buckets(angle[order], jnp.sum(live.astype(jnp.int32)))
+    n_live = jnp.sum(live.astype(jnp.int32))
+    bucket, frame, steps = _plane_buckets(angle[order], n_live)
     return _Planes(
         angle=angle[order],
-        n_live=jnp.sum(live.astype(jnp.int32)),
+        n_live=n_live,
         ref=ref,
         base=_once(base),
         texels=jnp.sum(n_rows),
