@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from experiments._rle_peers import batched_cameras, embree_peers, mesh_in_voxels
-from experiments.common import DATA, machine
+from experiments.common import DATA, machine, release_programs
 from jaxgfx import post
 from jaxgfx import raycast as RC
 from jaxgfx.camera import look_at, supersampled
@@ -432,6 +432,7 @@ def run(args):
             for r in batched_cameras(rle, [supersampled(c, (aa, 1)) for c in eight]):
                 print(json.dumps(r))
                 batch_rows.append(r)
+        release_programs()  # a scene's dozen programs; the full run would run out of mappings
     # Scaling with instances (Fig. 4.23 / 4.30): ours vs splatting.  One
     # fixed camera near the map's corner looks across it, so more instances
     # mean more trees behind the first; mip levels + LOD bands and the early
@@ -588,6 +589,8 @@ def run(args):
                 lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
                 img, _ = post.antialias(lit, out.depth, (aa, 1))
                 figure.append((name, np.asarray(img)))
+        del built
+        release_programs()
     bits_rows = []
     if args.bits_res and (DATA / "meshes").is_dir():
         import trimesh
