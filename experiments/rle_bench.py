@@ -330,7 +330,11 @@ def run(args):
                 continue  # keep the full run within the CPU budget
             # 2x1 AA: the same view on a 2W x H grid of half-width pixels.
             cams = [supersampled(c, (aa, 1)) for c in scene_cameras(vox.shape, w, h, n_cams)]
-            f_ours = lambda c, r=rle: render(r, c)  # noqa: E731
+            if args.window is None:
+                f_ours = lambda c, r=rle: render(r, c)  # noqa: E731
+            else:  # the scatter's pairs per loop step, fixed (its fixed work follows it)
+                wset = RC.RenderSettings(window=args.window)
+                f_ours = lambda c, r=rle, st=wset: render(r, c, settings=st)  # noqa: E731
             first, ours, out = timed(f_ours, cams, reps)
             stats = {k: int(v) for k, v in out.stats.items()}
             img, _ = post.antialias(out.color, out.depth, (aa, 1))
@@ -644,6 +648,13 @@ def main(argv=None) -> int:
         help="mip kind of the instance table's objects (encode_rle's mips=)",
     )
     ap.add_argument("--sizes", default=None, help="frame sizes, e.g. 512x384 (default: all)")
+    ap.add_argument(
+        "--window",
+        type=int,
+        default=None,
+        help="the main table's frames with RenderSettings(window=N): the scatter's pairs "
+        "per loop step (default: the platform's, default_window)",
+    )
     ap.add_argument(
         "--fresh-memory",
         action="store_true",
