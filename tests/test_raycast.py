@@ -13,6 +13,7 @@ import pytest
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
 from jaxgfx._src.voxel import texels, traverse, warp
+from jaxgfx._src.voxel.scatter import scatter_limits
 from jaxgfx._src.voxel.wide import traverse_wide
 from jaxgfx.camera import (
     camera_basis,
@@ -387,6 +388,29 @@ def test_instances_render_like_copies(scene):
     np.testing.assert_array_equal(np.asarray(out0.color), np.asarray(out.color))
     for k in ("elements_total", "elements_processed", "elements_rendered"):
         assert int(out0.stats[k]) == int(out.stats[k])
+
+
+def test_scatter_draws_an_instance_map_over_8192_columns_wide():
+    # A row of 1,100 tiles of an 8-column object: 8,800 columns along x, past 2^13, so the
+    # packed map cells need their 14 bits; the view looks down on the row's far end.
+    occ = np.zeros((8, 6, 32), bool)
+    occ[:, 0] = True  # ground
+    occ[2:5, 1:5, 12:16] = True  # a post
+    col = np.zeros(occ.shape + (3,), np.uint8)
+    col[..., 0] = np.arange(8)[:, None, None] * 30
+    col[..., 1] = 160
+    vox = V.dense_to_voxels(occ, col, surface=False)
+    n = 1100
+    inst = V.place_instances(V.encode_rle(vox, levels=1), [(i, 0) for i in range(n)], (n, 1))
+    rle = V.as_jax(inst)
+    assert inst.shape[0] == 8 * n and scatter_limits(rle, 4096) is None
+    cam = look_at([8520.0, 24.0, -10.0], [8540.0, 0.0, 16.0], fov=50, width=W, height=H, far=1e4)
+    out = render(rle, cam, settings=SCATTER)
+    occ_m, col_m = (jnp.asarray(a) for a in V.voxels_to_dense(V.decode_rle(inst)))
+    ref, _ = reference(occ_m, col_m, cam)
+    d_ok, c_ok, hits = _agreement(out, ref)
+    assert hits > 0.3 * W * H
+    assert d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE, (d_ok, c_ok)
 
 
 def test_even_oversample_keeps_pixel_aligned_planes(scene):

@@ -139,7 +139,7 @@ def rows_per_pair(*, accelerator: bool = False) -> int:
 def scatter_limits(rle, num_planes: int) -> str | None:
     """Why :func:`scatter_ray_buffer` cannot draw a scene, or None.
 
-    A map below 8192 columns a side, 4096 voxels high, 8 levels and 64 elements
+    A map below 16384 columns a side, 4096 voxels high, 8 levels and 64 elements
     a column (its packed words), with fewer than ``2^31`` element instances (an
     instance map's tiles times the object's elements, a tail that columns share
     counted once per column), seen through fewer than 32767 planes.

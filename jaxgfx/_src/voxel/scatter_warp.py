@@ -24,7 +24,7 @@ __all__ = ["RayBuffer", "warp_texels"]
 
 # Bit fields of the scatter's packed per-element words (checked by
 # scatter.check_scatter_scene).
-_XZ_BITS = 13  # map cell x and z
+_XZ_BITS = 14  # map cell x and z; with 3 bits of level the cell word stays positive
 _H_BITS = 12  # voxel heights
 
 
@@ -36,7 +36,7 @@ class _Elements(NamedTuple):
     """
 
     n_pairs: jax.Array  # planes that cross the element's cell (0: empty slot)
-    cell: jax.Array  # ix | iz << 13 | level << 26
+    cell: jax.Array  # ix | iz << 14 | level << 28
     heights: jax.Array  # bottom | top << 12 | front-to-back rank << 24
     planes: jax.Array  # n1 | lo1 << 15: its column's sorted planes
     color: jax.Array  # colour index of the top voxel
