@@ -25,26 +25,12 @@ __all__ = [
     "limb_rig",
     "limb_binding",
     "random_poses",
-    "release_programs",
 ]
 
 # Real data no one here made (``../shared/data`` beside the checkout; JAXGFX_DATA overrides).
 DATA = Path(
     os.environ.get("JAXGFX_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
 )
-
-
-def release_programs() -> None:
-    """Drops every compiled program of this process (``jax.clear_caches``).
-
-    XLA:CPU maps each program's machine code in many small memory mappings (over a
-    thousand for one ``render_rle`` frame program: the lines of ``/proc/self/maps``), and
-    Linux allows a process 65,530 by default (``vm.max_map_count``): ``rle_bench``, which
-    compiles about a dozen programs for each of its scenes and instance maps, ran out
-    ("LLVM compilation error: Cannot allocate memory") with most of the memory free.
-    Benchmarks call this between scenes, after the last use of that scene's programs.
-    """
-    jax.clear_caches()
 
 
 def cylinder(n_around: int, n_along: int, radius: float, length: float, *, caps: bool = True):

@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from experiments._rle_peers import batched_cameras, embree_peers, mesh_in_voxels
-from experiments.common import DATA, machine, release_programs
+from experiments.common import DATA, machine
 from jaxgfx import post
 from jaxgfx import raycast as RC
 from jaxgfx.camera import look_at, supersampled
@@ -308,6 +308,8 @@ def run(args):
     # traversal on accelerators.
     cpu = jax.default_backend() == "cpu"
     walk = WALK if cpu else WIDE
+    # The default settings, or the scatter's pairs per loop step fixed (--window).
+    ours_settings = RC.RenderSettings(window=args.window)
     scenes = scene_list(quick, only)
     has_mesh = any(mesh is not None for _, _, mesh, _, _ in scenes)
     splat_fn = make_splat_fn()
@@ -330,11 +332,7 @@ def run(args):
                 continue  # keep the full run within the CPU budget
             # 2x1 AA: the same view on a 2W x H grid of half-width pixels.
             cams = [supersampled(c, (aa, 1)) for c in scene_cameras(vox.shape, w, h, n_cams)]
-            if args.window is None:
-                f_ours = lambda c, r=rle: render(r, c)  # noqa: E731
-            else:  # the scatter's pairs per loop step, fixed (its fixed work follows it)
-                wset = RC.RenderSettings(window=args.window)
-                f_ours = lambda c, r=rle, st=wset: render(r, c, settings=st)  # noqa: E731
+            f_ours = lambda c, r=rle: render(r, c, settings=ours_settings)  # noqa: E731
             first, ours, out = timed(f_ours, cams, reps)
             stats = {k: int(v) for k, v in out.stats.items()}
             img, _ = post.antialias(out.color, out.depth, (aa, 1))
@@ -436,7 +434,11 @@ def run(args):
             for r in batched_cameras(rle, [supersampled(c, (aa, 1)) for c in eight]):
                 print(json.dumps(r))
                 batch_rows.append(r)
-        release_programs()  # a scene's dozen programs; the full run would run out of mappings
+        # Drop the scene's dozen compiled programs: XLA:CPU maps each one's machine code
+        # in over a thousand memory mappings (/proc/self/maps), and with every scene's
+        # kept the full run passed Linux's 65,530 a process ("LLVM compilation error:
+        # Cannot allocate memory", most of the memory free).
+        jax.clear_caches()
     # Scaling with instances (Fig. 4.23 / 4.30): ours vs splatting.  One
     # fixed camera near the map's corner looks across it, so more instances
     # mean more trees behind the first; mip levels + LOD bands and the early
@@ -593,8 +595,7 @@ def run(args):
                 lit = shade(cams[0], out.color, out.depth, key=jax.random.key(0))
                 img, _ = post.antialias(lit, out.depth, (aa, 1))
                 figure.append((name, np.asarray(img)))
-        del built
-        release_programs()
+        jax.clear_caches()  # as after each scene
     bits_rows = []
     if args.bits_res and (DATA / "meshes").is_dir():
         import trimesh
