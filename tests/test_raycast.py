@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import types
 
 import jax
 import jax.numpy as jnp
@@ -12,7 +13,7 @@ import pytest
 
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
-from jaxgfx._src.voxel import texels, traverse, warp
+from jaxgfx._src.voxel import scatter, texels, traverse, warp
 from jaxgfx._src.voxel.scatter import scatter_limits
 from jaxgfx._src.voxel.wide import traverse_wide
 from jaxgfx.camera import (
@@ -411,6 +412,30 @@ def test_scatter_draws_an_instance_map_over_8192_columns_wide():
     d_ok, c_ok, hits = _agreement(out, ref)
     assert hits > 0.3 * W * H
     assert d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE, (d_ok, c_ok)
+
+
+def test_scatter_plane_runs_past_32767_planes_read_back_unsigned(scene):
+    # An element's plane runs are one packed word, n1 | lo1 << 16, whose top bit is lo1's
+    # once a map needs 32,768 planes or more (the 1600-bunny map needs 61,248): cutting the
+    # runs to a pass's planes must read lo1 back unsigned.  Against the runs as sets.
+    rng = np.random.default_rng(3)
+    lo1 = rng.integers(0, 60000, 256)
+    lo1[:4] = [32767, 32768, 60000, 0]
+    n1 = rng.integers(0, 5000, 256)
+    n2 = rng.integers(0, 300, 256)
+    word = jnp.asarray(n1 | (lo1 << 16), jnp.uint32).view(jnp.int32)
+    el = types.SimpleNamespace(planes=word, n_pairs=jnp.asarray(n1 + n2, jnp.int32))
+    for p_lo, p_hi in [(0, 65535), (32000, 40000), (50000, 65535), (100, 200)]:
+        n_pairs, runs = scatter._pass_planes(el, jnp.int32(p_lo), jnp.int32(p_hi))
+        runs = np.asarray(runs).view(np.uint32)
+        m1, a1 = runs & 0xFFFF, runs >> 16
+        want1 = np.maximum(np.minimum(lo1 + n1, p_hi) - np.maximum(lo1, p_lo), 0)
+        want2 = np.maximum(np.minimum(n2, p_hi) - p_lo, 0)
+        np.testing.assert_array_equal(m1, want1)
+        np.testing.assert_array_equal(np.asarray(n_pairs), np.where(n1 + n2 > 0, want1 + want2, 0))
+        np.testing.assert_array_equal(a1[want1 > 0], np.maximum(lo1, p_lo)[want1 > 0])
+    _, rle, _, _ = scene
+    assert scatter_limits(rle, 65535) is None and scatter_limits(rle, 65536) is not None
 
 
 def test_even_oversample_keeps_pixel_aligned_planes(scene):

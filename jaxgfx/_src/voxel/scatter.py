@@ -142,7 +142,7 @@ def scatter_limits(rle, num_planes: int) -> str | None:
     A map below 16384 columns a side, 4096 voxels high, 8 levels and 64 elements
     a column (its packed words), with fewer than ``2^31`` element instances (an
     instance map's tiles times the object's elements, a tail that columns share
-    counted once per column), seen through fewer than 32767 planes.
+    counted once per column), seen through at most 65535 planes.
     """
     X, Y, Z = rle.shape
     if max(X, Z) >= 1 << _XZ_BITS or Y >= 1 << _H_BITS or rle.levels > 8:
@@ -175,7 +175,7 @@ def check_scatter_scene(rle, num_planes: int, texels: int, rows: int) -> None:
 def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p_lo, offset):
     """Rows and walk-order key of pair (element ``e``, its ``k``-th plane in the pass) (steps 3-4).
 
-    ``planes``: the element's plane runs in the pass (``n1 | lo1 << 15``, then
+    ``planes``: the element's plane runs in the pass (``n1 | lo1 << 16``, then
     sorted planes from ``p_lo``); ``offset``: the pass's first texel.
 
     Returns ``(n_rows, key, first texel)``: ``n_rows = 0`` where the plane does not
@@ -183,7 +183,7 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     """
     cell, heights = el.cell[e], el.heights[e]
     n1 = planes & ((1 << _N_BITS) - 1)
-    ps = jnp.where(k < n1, (planes >> _N_BITS) + k, p_lo + k - n1)
+    ps = jnp.where(k < n1, _first_run(planes) + k, p_lo + k - n1)
     ps = jnp.clip(ps, 0, pl.packed.shape[0] - 1)
     row = pl.packed[ps]
     hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi = (row[..., i] for i in range(9))
@@ -298,6 +298,11 @@ class _Passes(NamedTuple):
     steps: jax.Array  # () int32 window steps
 
 
+def _first_run(planes):
+    """The first plane of a packed ``planes`` word's first run (its top 16 bits, unsigned)."""
+    return jax.lax.shift_right_logical(planes, jnp.int32(_N_BITS))
+
+
 def _pass_planes(el: _Elements, p_lo, p_hi):
     """Each element's plane runs cut to the sorted planes ``p_lo .. p_hi - 1``.
 
@@ -305,7 +310,7 @@ def _pass_planes(el: _Elements, p_lo, p_hi):
     (the second run then starts at ``p_lo``).
     """
     n1 = el.planes & ((1 << _N_BITS) - 1)
-    lo1 = el.planes >> _N_BITS
+    lo1 = _first_run(el.planes)
     a1 = jnp.maximum(lo1, p_lo)
     m1 = jnp.maximum(jnp.minimum(lo1 + n1, p_hi) - a1, 0)
     m2 = jnp.maximum(jnp.minimum(el.n_pairs - n1, p_hi) - p_lo, 0)

@@ -44,7 +44,9 @@ from jaxgfx._src.voxel.walk import _once
 
 __all__ = ["default_chunk"]
 
-_N_BITS = 15  # planes of a column's first run (the packed ``planes`` word)
+# Planes of a column's first run: the packed ``planes`` word ``n1 | lo1 << 16``, both
+# below 2^16 (the word's top bit is lo1's: read it back with a logical shift).
+_N_BITS = 16
 
 
 def default_chunk(width: int, height: int) -> int:

@@ -38,7 +38,7 @@ class _Elements(NamedTuple):
     n_pairs: jax.Array  # planes that cross the element's cell (0: empty slot)
     cell: jax.Array  # ix | iz << 14 | level << 28
     heights: jax.Array  # bottom | top << 12 | front-to-back rank << 24
-    planes: jax.Array  # n1 | lo1 << 15: its column's sorted planes
+    planes: jax.Array  # n1 | lo1 << 16 (bits, lo1 < 2^16): its column's sorted planes
     color: jax.Array  # colour index of the top voxel
 
 
