@@ -11,16 +11,14 @@ through the rasterizer, 4.6.3) and, for meshes, the mesh's own triangles
 through the rasterizer.  Ratios are baseline time / our time.  Compile time
 (first call) is reported apart from the steady-state time.  The default
 (``ours``) draws every scene with the scatter traversal, instance maps
-included.  Beside it: the wide traversals, the one-cell walk (``walk_*``), and
-the one-cell walk with one element pool for the most a frame can draw
-(``one_pool``, a single pass; the walk's pool is bounded and a frame that draws
-more takes more ``passes``), their frames taking turns with the default's
-(``ab_ours_ms``, ``ab_walk_ms``, ``one_pool_ms``), and the default with the
-walk's per-pixel re-walk, which the scatter leaves off (``rewalk_ms``,
-``RenderSettings(refine_steps=16)``).  On an accelerator the
-walk beside the default is the wide traversal (the renderer's walk there), and
-the CPU's variants (plane slots, one pool, the thesis's settings) are
-left out.
+included.  Beside it: the wide traversal (``wide_*``, every plane in every
+step) and on the CPU its plane slots (``slots_*``), the renderer's walk for a
+map beyond the scatter's limits; that walk's frames taking turns with the
+default's (``ab_ours_ms``, ``ab_wide_ms``: the slots on the CPU, the wide
+traversal elsewhere); and the default with the wide traversal's per-pixel
+re-walk, which the scatter leaves off (``rewalk_ms``,
+``RenderSettings(refine_steps=16)``).  On an accelerator the CPU's variants
+(plane slots, the thesis's settings) are left out.
 
 The peers a user would pick instead (``experiments._rle_peers``): Embree
 (open3d, all cores) on the same voxels' exposed cube faces and on the
@@ -83,18 +81,7 @@ LOD_DISTANCE = 96.0
 # steps, more of them).
 WIDE = RC.RenderSettings(traversal="wide")
 WIDE_SLOTS = RC.RenderSettings(traversal="wide", slots=512, block_cells=16)
-# The one-cell walk (the scatter draws every map by default).
-WALK = RC.RenderSettings(traversal="narrow")
 REWALK = RC.RenderSettings(refine_steps=16)
-
-
-def one_pool(w: int, h: int) -> RC.RenderSettings:
-    """The one-cell walk with one element pool for the most a frame draws (one pass).
-
-    What the walk used before its bounded pool (``pool_size``): the ``one_pool``
-    columns time it beside the walk's default pool.
-    """
-    return RC.RenderSettings(traversal="narrow", pool_size=3 * 2 * w * h)
 
 
 def markdown(rows, headers) -> str:
@@ -303,11 +290,10 @@ def run(args):
     rows, scale_rows, batch_rows = [], [], []
     figure = []  # (label, shaded frame) of the instance rows, camera 1
     only = set(args.scenes.split(",")) if args.scenes else None
-    # The walk timed beside the default: the one the renderer takes where the scatter
-    # does not (shared column tails), the one-cell walk on the CPU and the wide
-    # traversal on accelerators.
+    # The walk timed beside the default: the one the renderer takes for a map beyond
+    # the scatter's limits, the wide traversal (with plane slots on the CPU).
     cpu = jax.default_backend() == "cpu"
-    walk = WALK if cpu else WIDE
+    walk = WIDE_SLOTS if cpu else WIDE
     # The default settings, or the scatter's pairs per loop step fixed (--window).
     ours_settings = RC.RenderSettings(window=args.window)
     scenes = scene_list(quick, only)
@@ -356,41 +342,29 @@ def run(args):
             )
             # The traversals side by side (same cameras, same run): time, the
             # dependent loop steps of a frame (traversal + warp + re-walk), and
-            # the share of pixels where their frames and the default's (on the
-            # CPU the one-cell walk) agree on hit / miss.  Quick: none (CI time;
-            # the tests render both traversals).
-            one_object = tuple(rle.tiles.shape) == (1, 1)  # the scatter's scenes
+            # the share of pixels where their frames and the default's agree on
+            # hit / miss.  Quick: none (CI time; the tests render both traversals).
             variants = () if quick else (("wide", WIDE),)
             if not quick and cpu:  # plane slots: the CPU's form of the wide traversal
                 variants += (("slots", WIDE_SLOTS),)
-            if not quick and one_object and cpu:
-                variants += (("walk", WALK),)
             if not quick:
                 # The frames take turns (a few per cent is the question): the default,
-                # the walk where it is not the default, and on the CPU one
-                # frame-sized pool against the walk's default bounded one.
-                fns = {"ours": f_ours}
-                if one_object:
-                    fns["walk"] = lambda c, r=rle: render(r, c, settings=walk)
-                    # The scatter's frame with the walk's per-pixel re-walk
-                    # (RenderSettings.refine_steps, which the scatter leaves off).
-                    fns["rewalk"] = lambda c, r=rle: render(r, c, settings=REWALK)
-                if cpu:
-                    p1 = one_pool(*cams[0].shape[::-1])
-                    fns["one_pool"] = lambda c, r=rle, st=p1: render(r, c, settings=st)
+                # the renderer's walk beyond the scatter's limits, and the default
+                # with that walk's per-pixel re-walk (RenderSettings.refine_steps,
+                # which the scatter leaves off).
+                fns = {
+                    "ours": f_ours,
+                    "wide": lambda c, r=rle: render(r, c, settings=walk),
+                    "rewalk": lambda c, r=rle: render(r, c, settings=REWALK),
+                }
                 for f in list(fns.values())[1:]:
                     jax.block_until_ready(f(cams[0]))
                 t_ab = dict(zip(fns, interleaved(list(fns.values()), cams, 3)))
-                t_walk = t_ab.get("walk", t_ab["ours"])
                 row["ab_ours_ms"] = round(1e3 * t_ab["ours"], 1)
-                row["ab_walk_ms"] = round(1e3 * t_walk, 1)
-                row["ab_ours/walk"] = round(t_ab["ours"] / t_walk, 2)
-                if "rewalk" in t_ab:
-                    row["rewalk_ms"] = round(1e3 * t_ab["rewalk"], 1)
-                    row["ab_ours/rewalk"] = round(t_ab["ours"] / t_ab["rewalk"], 2)
-                if "one_pool" in t_ab:
-                    row["one_pool_ms"] = round(1e3 * t_ab["one_pool"], 1)
-                    row["one_pool/walk"] = round(t_ab["one_pool"] / t_walk, 2)
+                row["ab_wide_ms"] = round(1e3 * t_ab["wide"], 1)
+                row["ab_ours/wide"] = round(t_ab["ours"] / t_ab["wide"], 2)
+                row["rewalk_ms"] = round(1e3 * t_ab["rewalk"], 1)
+                row["ab_ours/rewalk"] = round(t_ab["ours"] / t_ab["rewalk"], 2)
             for label, st in variants:
                 f_t = lambda c, r=rle, st=st: render(r, c, settings=st)  # noqa: E731
                 _, t_t, o_t = timed(f_t, cams, reps)
@@ -399,7 +373,7 @@ def run(args):
                 same = np.isfinite(np.asarray(o_t.depth)) == np.isfinite(np.asarray(out.depth))
                 row[f"{label}_same_hits"] = round(100 * float(same.mean()), 2)
             if w * h <= base_limit:
-                if not quick and cpu:  # the thesis's settings draw with the CPU's walk
+                if not quick and cpu:  # the thesis's settings (Eq. 4.4 planes, nearest texel)
                     f_th = lambda c, r=rle: render(r, c, settings=THESIS)  # noqa: E731
                     _, t_th, _ = timed(f_th, cams, reps)
                     row["thesis_ms"] = round(1e3 * t_th, 1)
@@ -416,8 +390,6 @@ def run(args):
                     t_peer = steady(times)
                     row[f"{label}_ms"] = round(1e3 * t_peer, 1)
                     row[f"ours/{label}"] = round(ours / t_peer, 2)
-                    if "walk_ms" in row:
-                        row[f"walk/{label}"] = round(row["walk_ms"] / 1e3 / t_peer, 2)
                     row.update(extra)
                 if mesh is not None:
                     mv = jnp.asarray(mesh_in_voxels(mesh, vox.shape))
@@ -523,11 +495,11 @@ def run(args):
             r["_px_covered"] = float(np.isfinite(np.asarray(out_px.depth)).mean())
             r["px_lod_iters"] = int(out_px.stats["loop_iterations"])
             f_wpx = None
-            if not quick:  # the walk beside it at the same LOD (CI time: not in quick)
+            if not quick:  # the wide traversal at the same LOD (CI time: not in quick)
                 f_wpx = lambda cam, s=jscene, d=px_lod: render(
                     s, cam, lod_distance=d, settings=walk
                 )  # noqa: E731
-                r["walk_px_lod_iters"] = int(f_wpx(cams[0]).stats["loop_iterations"])
+                r["wide_px_lod_iters"] = int(f_wpx(cams[0]).stats["loop_iterations"])
             built.append((r, (fn, f_px, f_wpx), f_sp, (out, out_px)))
         # Interleaved rounds: every instance count sees the same machine state,
         # so drift between sections does not skew the time / 1 instance ratios.
@@ -580,8 +552,8 @@ def run(args):
             r["px_lod_per_pixel/1 instance"] = round(px / base_px / cov_ratio, 2)
             if base_wpx is not None:
                 wpx = steady(t_wpx[b])
-                r["walk_px_lod_ms"] = round(1e3 * wpx, 1)
-                r["walk_px_lod_per_pixel/1 instance"] = round(wpx / base_wpx / cov_ratio, 2)
+                r["wide_px_lod_ms"] = round(1e3 * wpx, 1)
+                r["wide_px_lod_per_pixel/1 instance"] = round(wpx / base_wpx / cov_ratio, 2)
             print(json.dumps(r))
             scale_rows.append(r)
         # The figure: the forest as a user would show it, on its ground (quick: the
@@ -678,12 +650,10 @@ def main(argv=None) -> int:
     h1 = ["scene", "note", "size", "voxels", "bits_per_voxel", "bytes_per_voxel", "el_total_M",
           "el_processed_M", "el_rendered_M", "overflow", "ours_ms", "ours_compile_s",
           "Melem_per_s", "iters", "wide_ms", "wide_iters",
-          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits", "walk_ms",
-          "walk_iters", "walk_same_hits", "ab_ours_ms", "ab_walk_ms", "ab_ours/walk",
-          "rewalk_ms", "ab_ours/rewalk",
-          "one_pool_ms", "one_pool/walk", "thesis_ms",
+          "wide_same_hits", "slots_ms", "slots_iters", "slots_same_hits",
+          "ab_ours_ms", "ab_wide_ms", "ab_ours/wide", "rewalk_ms", "ab_ours/rewalk", "thesis_ms",
           "dda_ms", "dda/ours", "splat_ms", "splat/ours", "mesh_ms",
-          "mesh/ours", "embree_faces_ms", "ours/embree_faces", "walk/embree_faces",
+          "mesh/ours", "embree_faces_ms", "ours/embree_faces",
           "embree_faces_agree",
           "embree_mesh_ms", "ours/embree_mesh", "embree_mesh_agree", "embree_mesh_dz"]  # fmt: skip
     h2 = ["way", "frames", "size", "ms_per_frame", "speedup_vs_loop", "median_speedup",
@@ -693,8 +663,8 @@ def main(argv=None) -> int:
           "time/1 instance", "covered_pct", "covered/1 instance", "time/100 instances",
           "ours_cpu_ms", "cpu/1 instance", "ours_compile_s", "el_processed_M",
           "el_rendered_M", "px_lod", "px_lod_ms", "px_lod/1 instance",
-          "px_lod_per_pixel/1 instance", "px_lod_iters", "walk_px_lod_ms",
-          "walk_px_lod_per_pixel/1 instance", "walk_px_lod_iters", "px_lod_el_processed_M",
+          "px_lod_per_pixel/1 instance", "px_lod_iters", "wide_px_lod_ms",
+          "wide_px_lod_per_pixel/1 instance", "wide_px_lod_iters", "px_lod_el_processed_M",
           "splat_ms", "splat/ours"]  # fmt: skip
     h4 = ["scene", "resolution", "shape", "voxels", "rle_elements_M", "bits_per_voxel",
           "bits_level0_only", "thesis_bits_per_voxel", "bytes_per_voxel_with_color",

@@ -126,7 +126,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=None)
-    ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "narrow", "scatter"),
+    ap.add_argument("--traversal", default="auto", choices=("auto", "wide", "scatter"),
                     help="RenderSettings.traversal of the renders checked")  # fmt: skip
     ap.add_argument("--oversample", type=float, default=None,
                     help="RenderSettings.oversample of the renders checked")  # fmt: skip

@@ -26,8 +26,7 @@ A reader's table of contents: thesis section -> function (implementation in
     ``mips="column"``, not in the thesis: levels that keep the heights, so LOD bands join
     without steps); :func:`lod_distance_for` (the band length for a cell size on screen).
 4.5 Rendering: :func:`render_rle` with its static :class:`RenderSettings`, giving a
-    :class:`RenderOutput`; :func:`default_num_planes`, :func:`default_max_steps`,
-    :func:`check_camera_outside`.
+    :class:`RenderOutput`; :func:`default_num_planes`, :func:`check_camera_outside`.
 4.5.1 Vanishing point:
     :func:`vanishing_point` (Eq. 4.2, 4.3).
 4.5.2 Concentric planes:
@@ -35,11 +34,12 @@ A reader's table of contents: thesis section -> function (implementation in
 4.5.3 Plane parameters:
     :func:`plane_parameters`, :class:`PlaneParams`, :func:`plane_extent`.
 4.5.4-4.5.5 Rasterizing and displaying the ray buffer:
-    the per-plane traversal into ray-buffer lists (2-D DDA per plane, Eq. 4.5 projection,
-    floating horizon and coverage culling) and the warp to the screen (Eq. 4.6) are stages
-    of :func:`render_rle`, importable from ``jaxgfx._src.voxel.traverse`` (one cell per
-    plane per loop step), ``jaxgfx._src.voxel.wide`` (a block of cells per plane per step:
-    tens of steps a frame) and ``jaxgfx._src.voxel.warp``.
+    the ray buffer (Eq. 4.5 projection, first writer per texel, floating horizon and
+    coverage culling) and the warp to the screen (Eq. 4.6) are stages of
+    :func:`render_rle`, importable from ``jaxgfx._src.voxel.scatter`` (every element
+    scattered into the planes that cross its cell: a few wide steps a frame),
+    ``jaxgfx._src.voxel.wide`` (each plane's 2-D DDA in blocks of cells: tens of steps a
+    frame) and ``jaxgfx._src.voxel.warp``.
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
     :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
@@ -90,7 +90,6 @@ from jaxgfx._src.voxel.reference import dda_ray_3d as dda_ray_3d
 from jaxgfx._src.voxel.reference import reference_render as reference_render
 from jaxgfx._src.voxel.render import RenderOutput as RenderOutput
 from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outside
-from jaxgfx._src.voxel.render import default_max_steps as default_max_steps
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
 from jaxgfx._src.voxel.render import lod_distance_for as lod_distance_for
 from jaxgfx._src.voxel.render import render_rle as render_rle
@@ -158,7 +157,6 @@ __all__ = [
     "render_rle",
     "lod_distance_for",
     "default_num_planes",
-    "default_max_steps",
     "check_camera_outside",
     "vanishing_point",
     "Segments",

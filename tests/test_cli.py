@@ -374,29 +374,19 @@ def test_host_device_flags():
 
 
 def test_lost_elements_warning_names_the_size_that_keeps_them(capsys):
-    from jaxgfx import raycast as RC
     from jaxgfx.camera import look_at
     from jaxgfx.cli.voxels import warn_lost_elements
 
     cam = look_at([0, 0, -10], [0, 0, 0], 60, 40, 30)
-    small = RC.RenderSettings(pool_size=1000)
 
-    def said(lost, drawn, settings=small):
-        warn_lost_elements({"buffer_overflow": lost, "elements_rendered": drawn}, settings, cam)
+    def said(lost, drawn):
+        warn_lost_elements({"buffer_overflow": lost, "elements_rendered": drawn}, cam)
         return capsys.readouterr().err
 
-    assert said(0, 5000) == ""
-    # Every loss explained by the pool (drawn - pool): a pool a quarter larger, whole KiB.
-    pool_only = said(4000, 5000)
-    assert "4000 of the 5000" in pool_only and "--pool-size 7168" in pool_only
-    assert "--buffer-size" not in pool_only
-    # A loss although the pool held every drawn element: a plane's list was full.
-    list_only = said(30, 900)
-    assert "--buffer-size 40" in list_only and "--pool-size" not in list_only
-    both = said(4100, 5000)
-    assert "--pool-size 7168" in both and "--buffer-size 40" in both
-    # The default pool: 3 oversample W H = 7200 at oversample 2.
-    assert "--pool-size 10240" in said(800, 8000, RC.RenderSettings())
+    assert said(0, 900) == ""
+    # A plane's list was full: one entry per row of the longest plane (max(W, H)) fits.
+    told = said(30, 900)
+    assert "30 of the 900" in told and "--buffer-size 40" in told
 
 
 # ------------------------------------------------- inputs that are not what they claim to be

@@ -13,7 +13,7 @@ import pytest
 
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
-from jaxgfx._src.voxel import scatter, texels, traverse, warp
+from jaxgfx._src.voxel import scatter, warp
 from jaxgfx._src.voxel.scatter import scatter_limits
 from jaxgfx._src.voxel.wide import traverse_wide
 from jaxgfx.camera import (
@@ -35,8 +35,9 @@ DEPTH_AGREE_PLAIN = 0.975
 # render_rle's settings for the thesis method alone: one plane per border
 # pixel (Eq. 4.4), nearest texel, no per-pixel re-walk.
 THESIS = RC.RenderSettings(oversample=1.0, neighbors=0, refine_steps=0, planes_per_voxel=0.0)
-# The one-cell walk (the default draws single-object maps with the scatter).
-NARROW = RC.RenderSettings(traversal="narrow")
+# The wide traversal: the per-plane walk in blocks of cells (the renderer's walk for a
+# map beyond the scatter's limits; the default draws these maps with the scatter).
+WIDE = RC.RenderSettings(traversal="wide")
 
 
 def _scene():
@@ -185,25 +186,6 @@ def test_matches_reference_dda(scene, name, cam):
         st = {k: int(v) for k, v in o.stats.items()}
         assert 0 < st["elements_rendered"] <= st["elements_processed"]
         assert 0 < st["elements_total"] <= st["elements_processed"] + st["elements_total"] // 2
-
-
-def test_passes_of_a_small_pool_give_the_frame_of_one_pool(scene):
-    # A pool too small for the frame's lists: the frame is walked in passes, each
-    # warping the planes it walked, and the merged warp is the one-pass frame bit
-    # for bit (the same candidate per pixel: nearest entry, then candidate order).
-    _, rle, _, _ = scene
-    small = RC.RenderSettings(traversal="narrow", pool_size=400)
-    passes = []
-    for name, cam in CAMERAS:
-        one, split = render(rle, cam, settings=NARROW), render(rle, cam, settings=small)
-        assert int(one.stats["passes"]) == 1, name
-        assert int(split.stats["buffer_overflow"]) == 0, name
-        passes.append(int(split.stats["passes"]))
-        np.testing.assert_array_equal(np.asarray(split.depth), np.asarray(one.depth), name)
-        np.testing.assert_array_equal(np.asarray(split.color), np.asarray(one.color), name)
-        for k in ("elements_rendered", "refined"):
-            assert int(split.stats[k]) == int(one.stats[k]), (name, k)
-    assert max(passes) >= 3, passes
 
 
 def test_half_width_pixels_match_reference(scene):
@@ -378,17 +360,9 @@ def test_instances_render_like_copies(scene):
     occ, col = (jnp.asarray(a) for a in V.voxels_to_dense(V.decode_rle(inst)))
     cam = look_at([55, 28, 50], [24, 5, 24], fov=55, width=W, height=H)
     ref, _ = reference(occ, col, cam)
-    out = render(V.as_jax(inst), cam, settings=NARROW)
+    out = render(V.as_jax(inst), cam, settings=WIDE)
     d_ok, c_ok, n = _agreement(out, ref)
     assert n > 800 and d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE
-    # The walk's empty-space skipping only drops empty cells: without the distance
-    # map (every jump one cell) the frame and the element counts are identical.
-    plain = dataclasses.replace(inst, empty_dist=np.zeros_like(inst.empty_dist))
-    out0 = render(V.as_jax(plain), cam, settings=NARROW)
-    np.testing.assert_array_equal(np.asarray(out0.depth), np.asarray(out.depth))
-    np.testing.assert_array_equal(np.asarray(out0.color), np.asarray(out.color))
-    for k in ("elements_total", "elements_processed", "elements_rendered"):
-        assert int(out0.stats[k]) == int(out.stats[k])
 
 
 def test_scatter_draws_an_instance_map_over_8192_columns_wide():
@@ -458,20 +432,19 @@ def test_even_oversample_keeps_pixel_aligned_planes(scene):
     assert np.sum(~np.isclose(d1[0], d2[0], rtol=1e-5) & ~(np.isinf(d1[0]) & np.isinf(d2[0]))) <= 2
 
 
-def test_neighbor_candidates_never_in_front_and_step_width_invariant(scene):
+def test_neighbor_candidates_never_in_front(scene):
     # Every candidate the warp accepts is a real surface run entered by the
-    # pixel's own ray, so no depth lies in front of the exact first hit; and
-    # the number of elements handled per loop step does not change the image.
+    # pixel's own ray, so no depth lies in front of the exact first hit: the
+    # scatter's texels and the wide traversal's lists without their re-walk.
     vox, rle, occ, col = scene
     cam = CAMERAS[2][1]
     ref, _ = reference(occ, col, cam)
-    a = render(rle, cam, settings=RC.RenderSettings(refine_steps=0, elements_per_step=1))
-    b = render(rle, cam, settings=RC.RenderSettings(refine_steps=0))
-    d_ref, d_a = np.asarray(ref.depth), np.asarray(a.depth)
-    both = np.isfinite(d_ref) & np.isfinite(d_a)
-    assert np.all(d_a[both] >= d_ref[both] - 1e-3 * np.maximum(1.0, d_ref[both]))
-    np.testing.assert_allclose(np.asarray(a.depth), np.asarray(b.depth), rtol=1e-6)
-    np.testing.assert_array_equal(np.asarray(a.color), np.asarray(b.color))
+    d_ref = np.asarray(ref.depth)
+    for settings in (RC.RenderSettings(), dataclasses.replace(WIDE, refine_steps=0)):
+        d = np.asarray(render(rle, cam, settings=settings).depth)
+        both = np.isfinite(d_ref) & np.isfinite(d)
+        assert both.mean() > 0.1
+        assert np.all(d[both] >= d_ref[both] - 1e-3 * np.maximum(1.0, d_ref[both]))
 
 
 @pytest.mark.parametrize("pitch", [0.0, -30.0, -60.0, -88.0, -90.0, 89.9])
@@ -498,18 +471,6 @@ def test_plane_extent_matches_per_row_parameters(pitch):
     ref_max = np.where(valid, slope, -np.inf).max(1)[~empty]
     np.testing.assert_allclose(np.asarray(s_min)[~empty], ref_min, rtol=1e-3, atol=1e-4)
     np.testing.assert_allclose(np.asarray(s_max)[~empty], ref_max, rtol=1e-3, atol=1e-4)
-
-
-def test_traverse_plane_matches_batch(scene):
-    _, rle, _, _ = scene
-    cam = CAMERAS[2][1]
-    seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=64)
-    kw = dict(rows=W, max_steps=RC.default_max_steps(rle), lod_distance=jnp.inf)
-    tex, els, st = texels.traverse_planes(rle, cam, seg, jnp.arange(4, 8), **kw)
-    one = texels.traverse_plane(rle, cam, seg, jnp.int32(6), **kw)
-    np.testing.assert_array_equal(np.asarray(one[0]), np.asarray(tex[2]))
-    np.testing.assert_array_equal(np.asarray(one[1]), np.asarray(els[2]))
-    np.testing.assert_array_equal(np.asarray(one[2]), np.asarray(st[2]))
 
 
 def test_shared_columns_render_bit_identical():
@@ -556,85 +517,40 @@ def test_encoded_volume_closed_over_under_jit():
     np.testing.assert_array_equal(np.asarray(closed.color), np.asarray(passed.color))
 
 
-def test_warp_lists_equals_the_resolved_texel_warp(scene, monkeypatch):
-    # render_rle's warp scans the unresolved lists of covered tiles only; it must
-    # give the thesis-form warp's frame (coverage tree per plane, every pixel),
-    # with the pixel ray's depth up to float rounding.  A pool too small for the
-    # frame's lists counts what it drops.  Without the cheap steps that pass
-    # columns hidden behind drawn rows (free_steps=0) the lists are the same, and
-    # so they are when the top / bottom segments' chunks run with coverage maps of
-    # H rows (short_rows; split at any saving here, 1 word, instead of 16).
-
-    monkeypatch.setattr(traverse, "_SPLIT_WORDS", 1)
+def test_warp_lists_searches_from_each_words_first_entry(scene):
+    # The warp finds a texel's writer by scanning its plane's list front to back for
+    # the first element covering the row, from the first entry that drew in the row's
+    # coverage word: against a loop over the lists, and against the scan from each
+    # list's head (the same frame).
     _, rle, _, _ = scene
     cam = CAMERAS[2][1]
     P = RC.default_num_planes(W, H, 2.0)
     seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=P, oversample=2.0)
-    kw = dict(rows=W, max_steps=RC.default_max_steps(rle), lod_distance=jnp.inf)
 
     @jax.jit
     def both(rle, cam, seg):
-        tex, els, _ = texels.traverse_planes(rle, cam, seg, jnp.arange(P), **kw)
-        pool, start, drawn, cov, first, st = traverse.traverse_lists(
-            rle, cam, seg, jnp.arange(P), **kw
-        )
-        small = traverse.traverse_lists(
-            rle, cam, seg, jnp.arange(P), pool_size=100, free_steps=0, **kw
-        )
-        # Columns of 128 rows (4 words; W = 96 needs 3), 3 for the top / bottom.
-        kw_split = dict(kw, rows=128)
-        split = traverse.traverse_lists(rle, cam, seg, jnp.arange(P), short_rows=H, **kw_split)
-        a = warp.warp_ray_buffer(rle, cam, seg, tex, els)
+        lists = traverse_wide(rle, cam, seg, jnp.arange(P), rows=W, lod_distance=jnp.inf)
+        pool, start, drawn, cov, first = lists[:5]
         b = warp.warp_lists(rle, cam, seg, pool, start, drawn, cov, first, tile=16)
         b0 = warp.warp_lists(rle, cam, seg, pool, start, drawn, cov, tile=16)
-        return (
-            (a, b, b0),
-            first,
-            jnp.sum(drawn),
-            jnp.sum(small[2]),
-            jnp.sum(small[5][:, 3]),
-            pool,
-            cov,
-            st,
-            small,
-            split,
-            start,
-            drawn,
-        )
+        return b, b0, pool, start, drawn, first
 
-    (a, b, b0), first, n, kept, lost, pool, cov, st, small, split, start, drawn = both(
-        rle, cam, seg
-    )
-    lists = lambda p, s, d: [np.asarray(p)[:, a : a + b] for a, b in zip(s, d)]  # noqa: E731
-    for got, want in zip(lists(*(split[i] for i in (0, 1, 2))), lists(pool, start, drawn)):
-        np.testing.assert_array_equal(got, want)
-    for i, want in ((2, drawn), (5, st)):
-        np.testing.assert_array_equal(np.asarray(split[i]), np.asarray(want))
-    np.testing.assert_array_equal(np.asarray(split[3])[:, :3], np.asarray(cov))
-    np.testing.assert_array_equal(np.asarray(split[4])[:, :3], np.asarray(first))
-    assert not np.asarray(split[3])[:, 3].any() and (np.asarray(split[4])[:, 3] == 2**31 - 1).all()
-    np.testing.assert_array_equal(np.asarray(small[0]), np.asarray(pool)[:, :100])
-    np.testing.assert_array_equal(np.asarray(small[3]), np.asarray(cov))
-    np.testing.assert_array_equal(np.asarray(small[4]), np.asarray(first))
-    # ... while the default decodes fewer columns (it passes the hidden ones).
-    assert np.asarray(st)[:, 1].sum() < np.asarray(small[5])[:, 1].sum()
+    b, b0, pool, start, drawn, first = both(rle, cam, seg)
+    lists = [np.asarray(pool)[:, a : a + n] for a, n in zip(np.asarray(start), np.asarray(drawn))]
     # Each coverage word's first drawing entry: the first of its plane's list whose
-    # rows [r0, r1) meet the word (a loop over the lists), none for an empty word.
+    # rows [r0, r1) meet the word, none for an empty word.
     want = np.full(np.asarray(first).shape, 2**31 - 1)
-    for p, rows in enumerate(lists(pool, start, drawn)):
+    for p, rows in enumerate(lists):
         for e, w in reversed(list(enumerate(rows[0]))):
             r0, r1 = w & 0xFFFF, w >> 16
             want[p, r0 >> 5 : ((r1 - 1) >> 5) + 1] = e
     np.testing.assert_array_equal(np.asarray(first), want)
     assert (want < 2**31 - 1).sum() > 50
-    assert int(n) > 200 and 0.1 < np.isfinite(np.asarray(a[1])).mean() < 0.5
-    np.testing.assert_array_equal(np.asarray(a[0]), np.asarray(b[0]))
-    np.testing.assert_array_equal(np.asarray(a[2]), np.asarray(b[2]))
-    np.testing.assert_allclose(np.asarray(a[1]), np.asarray(b[1]), rtol=1e-6)
-    # The search started at the word's first entry finds the same writers.
-    for x, y in zip(b, b0):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    assert int(kept) == 100 and int(lost) == int(n) - 100
+    assert 0.1 < np.isfinite(np.asarray(b[1])).mean() < 0.5
+    # The same writers (colours, entered); depths up to the two programs' rounding.
+    np.testing.assert_array_equal(np.asarray(b[0]), np.asarray(b0[0]))
+    np.testing.assert_array_equal(np.asarray(b[2]), np.asarray(b0[2]))
+    np.testing.assert_allclose(np.asarray(b[1]), np.asarray(b0[1]), rtol=1e-6)
 
 
 def test_far_plane_spacing_follows_the_lod_cell():
@@ -666,8 +582,7 @@ def test_live_rows_keep_every_row_that_can_still_meet_the_scene():
     # crowns of an instance map).  Brute force per row from its own slope: no
     # row that can still meet the slab is left out, and the bound is tight (a
     # row kept that cannot is within one row of the range's ends).
-    from jaxgfx._src.voxel.traverse import _plane_init
-    from jaxgfx._src.voxel.walk import _live_rows
+    from jaxgfx._src.voxel.walk import _live_rows, _plane_init
 
     cam = look_at([-10, 26, -12], [40, 14, 50], 55, W, H, far=1e5)
     seg = RC.screen_segments(cam, RC.vanishing_point(cam), num_planes=64)
@@ -708,15 +623,14 @@ def test_live_rows_keep_every_row_that_can_still_meet_the_scene():
 # The wide traversal (a block of cells per plane per loop step) and its batching
 # ---------------------------------------------------------------------------
 
-WIDE = RC.RenderSettings(traversal="wide")
 WIDE_VECTOR = RC.RenderSettings(traversal="wide", batching="vectorized")
 WIDE_CAMERAS = [CAMERAS[1], CAMERAS[2], CAMERAS[4]]
 
 
 def test_wide_traversal_matches_reference_and_batches_as_one_program(scene):
-    # Every plane walks a block of cells per loop step: the same agreement with
-    # the per-pixel DDA as the one-cell walk, in tens of dependent steps instead
-    # of thousands.
+    # Every plane walks a block of cells per loop step: the agreement with the
+    # per-pixel DDA in tens of dependent steps (the thesis's one-cell walk takes
+    # thousands).
     _, rle, occ, col = scene
     per = []
     for name, cam in WIDE_CAMERAS:
@@ -732,9 +646,6 @@ def test_wide_traversal_matches_reference_and_batches_as_one_program(scene):
         assert st["elements_rendered"] <= st["elements_processed"] <= st["elements_total"]
         assert 0 < st["traversal_steps"] <= 20, (name, st["traversal_steps"])
         assert st["loop_iterations"] <= 60, (name, st["loop_iterations"])
-        # The one-cell walk takes thousands of steps.
-        narrow = int(render(rle, cam, settings=NARROW).stats["traversal_steps"])
-        assert narrow > 20 * st["traversal_steps"]
     # The accelerator's vmap rule (one vmapped program: the cameras' planes form
     # one wider array) against the frames rendered one by one, both run here.
     # Batched float arithmetic may round a plane's set-up differently, so a few
@@ -765,11 +676,12 @@ def _same_depth(d1, d2):
     return np.mean(np.isclose(d1, d2, rtol=1e-5, atol=0) | (np.isinf(d1) & np.isinf(d2)))
 
 
-def test_scatter_traversal_draws_the_one_cell_walks_frames(scene, user_jit):
+def test_scatter_traversal_draws_the_per_plane_walks_frames(scene, user_jit):
     # The first writer of a texel is fixed by the walk's order alone, so
     # projecting every element into the planes that cross its cell and keeping
-    # each texel's smallest walk-order key gives the one-cell walk's ray buffer:
-    # the same frames, in a few wide steps.  A window of 96 pairs and a table
+    # each texel's smallest walk-order key gives the per-plane walk's ray buffer
+    # (the wide traversal's: the walk in blocks of cells): the same frames, in a
+    # few wide steps.  A window of 96 pairs and a table
     # of 8 ray-buffer columns walk the pairs in many steps and many passes (runs
     # of planes in turn) and must give the same frame.
     _, rle, occ, col = scene
@@ -781,7 +693,7 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene, user_jit):
     for name, cam in CAMERAS:
         # The user's code generation: the windows' frames below are compared bit for bit.
         out = exact(rle, cam, settings=SCATTER, lod_distance=inf)
-        walk = walks[name] = render(rle, cam, settings=NARROW, lod_distance=inf)
+        walk = walks[name] = render(rle, cam, settings=WIDE, lod_distance=inf)
         ref, _ = reference(occ, col, cam)
         d_ok, c_ok, n = _agreement(out, ref)
         assert n > 800, name
@@ -807,14 +719,17 @@ def test_scatter_traversal_draws_the_one_cell_walks_frames(scene, user_jit):
         assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
         assert int(many.stats["passes"]) > max(4, st["passes"]), name
     assert max(rewalked) > 0, rewalked
-    # Mip level 1 from 8 voxels on: the level switch (in closed form per plane)
-    # is the walk's, so the frames stay the walk's.
+    # Mip level 1 from 8 voxels on.  The scatter switches a plane's level where the
+    # thesis's one-cell walk does, at the exit of the first cell past the band's
+    # start; the wide traversal at the first major-axis column past it, so the bands
+    # of the two may start a column apart (a short band here: 1.1 % of the pixels
+    # differ, at the bands' ends).
     for name, cam in (CAMERAS[2], CAMERAS[4]):
         out = render(rle, cam, settings=SCATTER, lod_distance=np.float32(8.0))
-        walk = render(rle, cam, settings=NARROW, lod_distance=np.float32(8.0))
+        walk = render(rle, cam, settings=WIDE, lod_distance=np.float32(8.0))
         d1, d2 = np.asarray(out.depth), np.asarray(walk.depth)
         assert not np.array_equal(d2, np.asarray(walks[name].depth))
-        assert _same_depth(d1, d2) >= 0.99, (name, _same_depth(d1, d2))
+        assert _same_depth(d1, d2) >= 0.98, (name, _same_depth(d1, d2))
 
 
 def test_scatter_traversal_batches_and_lowers_for_accelerators(scene):
@@ -879,7 +794,7 @@ INSTANCE_CAMERAS = [
 
 def test_scatter_draws_instance_maps_as_the_walk_and_batches_them():
     # An instance map's elements are drawn per tile at the tile's mip level,
-    # gathered near tiles first in chunks: the one-cell walk's frame (the walk
+    # gathered near tiles first in chunks: the per-plane walk's frame (the walk
     # agrees with the per-pixel DDA on instance maps:
     # test_instances_render_like_copies), at every LOD, whatever the chunk,
     # window and table sizes.  A vectorized batch agrees with the frames one by
@@ -893,12 +808,15 @@ def test_scatter_draws_instance_maps_as_the_walk_and_batches_them():
     for name, cam in INSTANCE_CAMERAS:
         for lod in (np.inf, 10.0):
             out = render(rle, cam, settings=SCATTER, lod_distance=np.float32(lod))
-            walk = render(rle, cam, settings=NARROW, lod_distance=np.float32(lod))
+            walk = render(rle, cam, settings=WIDE, lod_distance=np.float32(lod))
             d1, d2 = np.asarray(out.depth), np.asarray(walk.depth)
             assert np.isfinite(d1).mean() > 0.3, name
-            assert _same_depth(d1, d2) >= 0.99, (name, lod, _same_depth(d1, d2))
+            # (With LOD the two may start a band a column apart: see
+            # test_scatter_traversal_draws_the_per_plane_walks_frames.)
+            agree = 0.99 if np.isinf(lod) else 0.98
+            assert _same_depth(d1, d2) >= agree, (name, lod, _same_depth(d1, d2))
             same_color = np.all(np.asarray(out.color) == np.asarray(walk.color), -1)
-            assert np.mean(same_color) >= 0.99, (name, lod)
+            assert np.mean(same_color) >= agree, (name, lod)
             st = {k: int(v) for k, v in out.stats.items()}
             # a few wide steps (the frame's pairs fill 4 windows)
             assert 1 <= st["traversal_steps"] <= 16, (name, st)

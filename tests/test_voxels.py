@@ -595,16 +595,15 @@ def test_cli_voxelize_and_render(tmp_path, capsys):
     # both on the sky of every other pass (blue above, not black); only the voxels are lit
     assert np.array_equal(lit[~hit], unlit[~hit]) and lit[~hit][:, 2].min() > 100
     assert np.abs(lit[hit].astype(int) - unlit[hit]).mean() > 5
-    # The one-cell walk with a pool smaller than one chunk of planes' lists (a frame
-    # that only outgrows the pool takes more passes): the lost elements are counted
-    # and told on stderr with a --pool-size that fits, and that size gives the whole
-    # frame back (the default traversal's).
-    narrow = argv + ["--traversal", "narrow"]
-    assert main(narrow + ["--pool-size", "16"]) == 0
+    # The wide traversal (a map beyond the scatter's limits) with a one-entry list per
+    # plane: the lost elements are counted and told on stderr with a --buffer-size
+    # that fits, and that size gives the default traversal's frame back.
+    wide = argv + ["--traversal", "wide"]
+    assert main(wide + ["--buffer-size", "1"]) == 0
     cap = capsys.readouterr()
     assert json.loads(cap.out.strip().splitlines()[-1])["buffer_overflow"] > 0
-    fits = cap.err.split("--pool-size ")[1].split()[0]
-    assert main(narrow + ["--pool-size", fits]) == 0
+    fits = cap.err.split("--buffer-size ")[1].split()[0]
+    assert main(wide + ["--buffer-size", fits]) == 0
     cap = capsys.readouterr()
     assert json.loads(cap.out.strip().splitlines()[-1])["buffer_overflow"] == 0
     assert "warning" not in cap.err and np.array_equal(np.load(dep), depth)

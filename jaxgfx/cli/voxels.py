@@ -295,37 +295,25 @@ def frame_voxels(vox, fov: float, width: int, height: int):
     return framed_camera(c, VOXEL_VIEW, fov, (width, height), half_size=0.5)
 
 
-def warn_lost_elements(stats: dict, settings, cam) -> None:
+def warn_lost_elements(stats: dict, cam) -> None:
     """Tells on stderr that a frame lost drawn elements, and the option that keeps them.
 
-    The renderer keeps ``buffer_size`` drawn elements per plane and ``pool_size`` per
-    pass (static sizes; a frame that draws more takes more passes), drops the farthest
-    past a plane's buffer or the lists of one chunk of planes past the pool and counts
-    them (``stats["buffer_overflow"]``); the frame then misses part of the scene.
+    The wide traversal (a map beyond the scatter's limits) keeps ``buffer_size`` drawn
+    elements per plane (a static size), drops the farthest past a plane's buffer and
+    counts them (``stats["buffer_overflow"]``); the frame then misses part of the scene.
 
     Args:
         stats: the frame's stats as ints (``buffer_overflow``, ``elements_rendered``).
-        settings: the :class:`~jaxgfx.raycast.RenderSettings` it was rendered with.
         cam: its camera (the ``--aa`` grid).
     """
     lost, drawn = stats["buffer_overflow"], stats["elements_rendered"]
     if lost <= 0:
         return
-    from jaxgfx._src.voxel.render import default_pool_size
-
-    pool = settings.pool_size or default_pool_size(cam.width, cam.height, settings.oversample)
-    fixes = []
-    if drawn > pool:
-        # A quarter more than this frame drew, so a nearby view fits too; whole KiB.
-        fixes.append(f"--pool-size {-(-drawn * 5 // 4 // 1024) * 1024}")
-    # A pass loses only a chunk's lists past the pool, so the pool explains at most
-    # drawn - pool lost elements; more means a plane's list was full.
-    if lost > max(drawn - pool, 0):
-        # Each drawn element covers at least one new row of its plane: one per row fits.
-        fixes.append(f"--buffer-size {max(cam.width, cam.height)}")
+    # Each drawn element covers at least one new row of its plane: one per row fits.
     print(
         f"warning: {lost} of the {drawn} drawn elements did not fit the frame's lists, so "
-        f"part of the scene is missing from the image; rerun with {' '.join(fixes)}",
+        f"part of the scene is missing from the image; rerun with "
+        f"--buffer-size {max(cam.width, cam.height)}",
         file=sys.stderr,
     )
 
@@ -436,7 +424,6 @@ def run_render_voxels(args) -> int:
             neighbors=0 if args.thesis else 1,
             # The thesis's fixed per-pixel plane spacing (no distance-driven planes).
             planes_per_voxel=0.0 if args.thesis else RC.RenderSettings().planes_per_voxel,
-            pool_size=args.pool_size,
             buffer_size=args.buffer_size,
             traversal=args.traversal,
         )
@@ -447,7 +434,7 @@ def run_render_voxels(args) -> int:
             lod_distance=args.lod if args.lod > 0 else jnp.inf,
         )
         stats = {k: int(v) for k, v in out.stats.items()}
-        warn_lost_elements(stats, settings, cam)
+        warn_lost_elements(stats, cam)
     color, depth = _finish_jit()(
         cam, out.color, out.depth, jax.random.key(0), not args.unlit, tuple(args.aa)
     )
@@ -559,19 +546,15 @@ def register(subparsers) -> None:
     r.add_argument("--oversample", type=bounded_float(0.0, math.inf, open_interval=True),
                    default=2.0,
                    help="planes per border pixel (1 = thesis Eq. 4.4; 2 = default)")  # fmt: skip
-    r.add_argument("--traversal", choices=("auto", "scatter", "narrow", "wide"),
+    r.add_argument("--traversal", choices=("auto", "scatter", "wide"),
                    default="auto",
                    help="how the ray buffer is drawn (RenderSettings.traversal; auto: "
-                   "scatter; narrow on the CPU for shared column tails)")  # fmt: skip
-    r.add_argument("--pool-size", type=positive_int, default=None,
-                   help="narrow traversal: drawn elements kept per pass (default min(3 x "
-                   "oversample x W x H at the --aa grid, 2^19)); a frame that draws more takes "
-                   "more passes, and one whose chunk of planes alone needs more loses its "
-                   "farthest elements and says so on stderr")  # fmt: skip
+                   "scatter, wide for a map beyond the scatter's limits)")  # fmt: skip
     r.add_argument("--buffer-size", type=positive_int, default=None,
-                   help="narrow / wide traversals: drawn elements kept per plane (default "
-                   "max(64, max(W, H) / 2) at the --aa grid; max(W, H) always suffices); as "
-                   "--pool-size")  # fmt: skip
+                   help="wide traversal: drawn elements kept per plane (default "
+                   "max(64, max(W, H) / 2) at the --aa grid; max(W, H) always suffices); a "
+                   "frame that draws more loses its farthest elements and says so on "
+                   "stderr")  # fmt: skip
     r.add_argument("--thesis", action="store_true",
                    help="the thesis method alone: 1 plane per border pixel at any "
                    "distance, nearest texel, no re-walk")  # fmt: skip

@@ -8,7 +8,7 @@ RLE element (Fig. 4.11): 16 bits, ``skip << DRAW_BITS | draw``: ``skip`` empty v
 (10 bits), then ``draw`` coloured ones (6 bits), counted from the top of the column
 downwards.  Longer gaps and runs are split over several elements.
 
-Drawn element (the per-plane list of :func:`jaxgfx.raycast.traverse_planes`):
+Drawn element (the per-plane lists of :func:`~jaxgfx._src.voxel.wide.traverse_wide`):
 ``ELEMENT_WORDS`` int32 words, two 16-bit halves packed in words 0 and 1 and the
 mip level above the cell's z in word 4.
 """

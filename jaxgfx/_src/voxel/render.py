@@ -1,10 +1,10 @@
 """The per-plane ray caster from end to end (thesis 4.5): :func:`render_rle`.
 
 One frame: the vanishing point and the four screen segments (:mod:`.planes`), the
-ray buffer (by default every element scattered into the planes that cross its
-cell, :mod:`.scatter`; else each plane walked cell by cell, :mod:`.traverse`,
-or in blocks, :mod:`.wide`), the warp to the screen
-(:mod:`.warp`) and, for pixels the warp is unsure of, a short exact re-walk.  Its
+ray buffer (every element scattered into the planes that cross its cell,
+:mod:`.scatter`; for a map beyond the scatter's limits, each plane walked in
+blocks of cells, :mod:`.wide`), the warp to the screen (:mod:`.warp`) and, for
+pixels the warp is unsure of, a short exact re-walk.  Its
 static settings (sizes and switches that fix the program) are one
 :class:`~jaxgfx._src.voxel.settings.RenderSettings`.
 
@@ -33,21 +33,13 @@ from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.scatter import scatter_frame, scatter_limits
 from jaxgfx._src.voxel.settings import RenderSettings
-from jaxgfx._src.voxel.traverse import traverse_lists
-from jaxgfx._src.voxel.warp import (
-    empty_warp_tiles,
-    refine_hits,
-    warp_lists,
-    warp_tiles_image,
-)
+from jaxgfx._src.voxel.warp import refine_hits, warp_lists
 from jaxgfx._src.voxel.wide import traverse_wide
 
 __all__ = [
     "RenderOutput",
     "RenderSettings",
     "default_num_planes",
-    "default_max_steps",
-    "default_pool_size",
     "render_rle",
     "lod_distance_for",
     "check_camera_outside",
@@ -91,25 +83,6 @@ def default_num_planes(
         else int(math.ceil(planes_per_voxel * (scene_shape[0] + scene_shape[2])))
     )
     return int(math.ceil(2 * (width + height) * oversample)) + extra + 64
-
-
-def default_pool_size(width: int, height: int, oversample: float = 1.0) -> int:
-    """Static element pool of one pass of the one-cell walk: ``min(3 oversample W H, 2^19)``.
-
-    Each drawn element is the first writer of at least one ray-buffer texel, and a
-    frame has about ``oversample W H`` texels (up to ~2.5x that with the vanishing
-    point on screen), so up to ``3 oversample W H`` drawn elements a frame take
-    one pass.  Past ``2^19`` (10.5 MB) a frame that draws more takes more passes
-    instead: the pool is a fresh buffer every frame, and the bench's orbit views
-    draw at most 0.42 M elements at 512x384 with 2x1 AA (``untitled.vxl``); seen
-    from 88 degrees down, ``untitled.vxl`` draws 0.85 M at 512x384 (``rle_quality``).
-    """
-    return int(min(math.ceil(3 * oversample * width * height), 1 << 19))
-
-
-def default_max_steps(rle) -> int:
-    """Static 2-D DDA length that crosses the whole level-0 pointer map."""
-    return int(rle.shape[0] + rle.shape[2] + 2)
 
 
 def lod_distance_for(cam: Camera, pixels: float = 1.0) -> jax.Array:
@@ -166,8 +139,9 @@ def render_rle(
     loop steps.  The default ``traversal`` scatters the map's elements (an
     instance map's: each tile's, at the tile's mip level) into the planes
     (:mod:`.scatter`, every platform); a map beyond its limits
-    (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`) takes the one-cell walk
-    (:mod:`.traverse`) on the CPU and the wide-step walk (:mod:`.wide`) elsewhere.
+    (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`) takes the wide traversal
+    (:mod:`.wide`: a block of cells per plane per loop step), on the CPU with
+    plane slots (``RenderSettings.slots``).
 
     The depth is differentiable w.r.t. the camera: the traversal's choices are
     discrete (no gradient flows through them) and each hit pixel's depth carries
@@ -186,8 +160,8 @@ def render_rle(
     (``planes_per_voxel``: without them the agreement falls with the distance), (b) an
     exact test of the pixel's own ray against the elements of the adjacent
     planes' texels (:func:`warp_lists`: only screen tiles that a drawn element
-    covers are warped), and (c) for the walk's and the wide traversal's
-    lists, a short exact re-walk (:func:`refine_hits`) only for pixels whose
+    covers are warped), and (c) for the wide traversal's lists, a short exact
+    re-walk (:func:`refine_hits`) only for pixels whose
     ray entered none of those elements, at most ``refine_budget`` of them (the
     scatter's warp needs none: ``RenderSettings.refine_steps``).  Elements are
     still processed once per plane, never per pixel.
@@ -208,9 +182,8 @@ def render_rle(
         :class:`RenderOutput` with colour (H, W, 3), depth (H, W) and counters
         (``refined``: pixels that asked for a re-walk; ``traversal_steps`` and
         ``loop_iterations``: the dependent loop steps of the traversal and of the
-        whole frame, traversal + warp + re-walk; ``passes``: the one-cell walk's
-        passes over its element pool, see ``RenderSettings.pool_size``).  With
-        ``traversal="scatter"``, ``elements_total`` counts (element, plane) pairs,
+        whole frame, traversal + warp + re-walk; ``passes``: 1 for the wide
+        traversal).  With ``traversal="scatter"``, ``elements_total`` counts (element, plane) pairs,
         ``elements_processed`` their rows, ``elements_rendered`` the texels drawn,
         ``passes`` the runs of planes drawn in turn (``RenderSettings.texels``)
         and ``buffer_overflow`` is 0.
@@ -263,29 +236,36 @@ def _differentiable_depth(cam: Camera, depth):
     return jnp.where(hit, depth + (t_enter - jax.lax.stop_gradient(t_enter)), depth)
 
 
+# Plane slots of the wide traversal on the CPU: 1.3-6x faster there than every
+# plane in every step (experiments.rle_bench, slots_ms beside wide_ms).
+_CPU_SLOTS = 512
+
+
 def _render_auto(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> RenderOutput:
     """One frame; ``traversal="auto"`` picks by the scene and the platform.
 
     A map the scatter can draw takes it everywhere: a few wide steps a frame,
-    and on XLA:CPU faster than the one-cell walk on every scene but the smallest,
-    instance maps included (``experiments.rle_bench``).  Other maps (columns
-    that share tails) take the one-cell walk on the CPU and the wide traversal
-    elsewhere (an accelerator pays per dependent step, a kernel launch each).
-    Only the chosen branch is compiled.
+    and on XLA:CPU faster than the thesis's one-cell walk on every scene of
+    ``experiments.rle_bench``, instance maps included.  A map beyond its limits
+    takes the wide traversal: on the CPU with 512 plane slots (a done plane's
+    slot takes the next plane, so a step's width follows the live planes;
+    ``rle_bench``'s ``slots_ms``), elsewhere every plane in every step (an
+    accelerator pays per dependent step, a kernel launch each).  Only the
+    chosen branch is compiled.
     ``frames``: the frames of the vectorized batch this frame is one of.
     """
     if s.traversal != "auto":
         return _render_frame(s, rle, cam, lod, frames)
     if scatter_limits(rle, _num_planes(s, rle, cam)) is None:
         return _render_frame(dataclasses.replace(s, traversal="scatter"), rle, cam, lod, frames)
-    narrow = dataclasses.replace(s, traversal="narrow")
     wide = dataclasses.replace(s, traversal="wide")
+    slots = wide if s.slots is not None else dataclasses.replace(wide, slots=_CPU_SLOTS)
     return jax.lax.platform_dependent(
         rle,
         cam,
         lod,
-        cpu=functools.partial(_render_frame, narrow),
-        default=functools.partial(_render_frame, wide),
+        cpu=functools.partial(_render_frame, slots, frames=frames),
+        default=functools.partial(_render_frame, wide, frames=frames),
     )
 
 
@@ -324,18 +304,14 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> 
     ``frames``: the frames of the vectorized batch this frame is one of (the scatter's
     accelerator window).
     """
-    max_steps, oversample = s.max_steps, s.oversample
-    buffer_size, elements_per_step = s.buffer_size, s.elements_per_step
     num_planes = _num_planes(s, rle, cam)
-    if max_steps is None:
-        max_steps = default_max_steps(rle)
     rows = max(cam.width, cam.height)
     vp_h = vanishing_point(cam)
     seg = screen_segments(
         cam,
         vp_h,
         num_planes=num_planes,
-        oversample=oversample,
+        oversample=s.oversample,
         scene_shape=rle.shape,
         planes_per_voxel=s.planes_per_voxel,
         lod_distance=lod,
@@ -349,72 +325,35 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> 
         # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
         warped = (*image, jnp.int32(0))
         return _finish_frame(rle, cam, seg, s, stats[None, :], steps, warped, passes, batched=False)
-    wide = s.traversal == "wide"
     # The accelerator's form (every plane in every step) warps every busy tile in
     # one step and re-walks every uncertain pixel in one batch: its dependent steps
     # stay a few tens per frame.  Plane slots are the CPU's form: batched warp.
-    batched = wide and s.slots is None
-    warp = functools.partial(
-        warp_lists,
-        rle,
-        cam,
-        seg,
-        neighbors=s.neighbors,
-        batch_tiles=(1 << 30) if batched else None,
-        scan_width=8 if batched else 1,
-        with_steps=True,
-    )
-    if wide:
-        lists = traverse_wide(
-            rle,
-            cam,
-            seg,
-            planes,
-            rows=rows,
-            lod_distance=lod,
-            buffer_size=buffer_size,
-            block_cells=s.block_cells,
-            block_elements=s.block_elements,
-            slots=s.slots,
-        )
-        warped = warp(*lists[:5])
-        return _finish_frame(
-            rle, cam, seg, s, lists[5], lists[6], warped, jnp.int32(1), batched=batched
-        )
-
-    def consume(lists, mine, acc):
-        # The planes of one pass: their candidates, merged into the frame's warp.
-        *tiles, steps = warp(*lists[:5], plane_mask=mine, tiles=acc[0])
-        return tuple(tiles), acc[1] + steps
-
-    lists, (tiles, warp_steps), passes = traverse_lists(
+    batched = s.slots is None
+    lists = traverse_wide(
         rle,
         cam,
         seg,
         planes,
         rows=rows,
-        max_steps=max_steps,
         lod_distance=lod,
-        buffer_size=buffer_size,
-        elements_per_step=elements_per_step,
-        short_rows=cam.height,
-        pool_size=(
-            default_pool_size(cam.width, cam.height, oversample)
-            if s.pool_size is None
-            else s.pool_size
-        ),
-        # Chunks as wide as without the far-scene planes (a chunk's loop runs
-        # until its slowest plane is done): 64 chunks of the thesis budget.
-        chunks=max(
-            64,
-            -(-num_planes // -(-default_num_planes(cam.width, cam.height, oversample) // 64)),
-        ),
-        with_steps=True,
-        consume=consume,
-        acc=(empty_warp_tiles(cam), jnp.int32(0)),
+        buffer_size=s.buffer_size,
+        block_cells=s.block_cells,
+        block_elements=s.block_elements,
+        slots=s.slots,
     )
-    warped = (*warp_tiles_image(cam, tiles), warp_steps)
-    return _finish_frame(rle, cam, seg, s, lists[5], lists[6], warped, passes, batched=False)
+    warped = warp_lists(
+        rle,
+        cam,
+        seg,
+        *lists[:5],
+        neighbors=s.neighbors,
+        batch_tiles=(1 << 30) if batched else None,
+        scan_width=8 if batched else 1,
+        with_steps=True,
+    )
+    return _finish_frame(
+        rle, cam, seg, s, lists[5], lists[6], warped, jnp.int32(1), batched=batched
+    )
 
 
 def _finish_frame(

@@ -113,7 +113,7 @@ def _object_elements(rle, cam: Camera):
     valid = valid & (j >= 0) & (j < n)
     cy = _cell_height(rle, jnp.left_shift(1, lev).astype(jnp.float32))
     # Front to back in a column: down from the eye's height below it, up above
-    # it (traverse._rank's order; the two groups never meet one ray).
+    # it (walk._unrank's order; the two groups never meet one ray).
     above = bottom.astype(jnp.float32) * cy > cam.position[1]
     rank = jnp.where(above, 2 * rle.max_elements - 1 - j, j)
     el = _Elements(

@@ -2,7 +2,7 @@
 
 Every ray-buffer plane is a vertical half-plane through the eye; in the map it is
 a half-line from the eye in its x-z direction.  Sorted by that direction
-(:func:`_plane_tables`, the one-cell walk's plane constants, 4.5.3), the planes
+(:func:`_plane_tables`, the per-plane walk's constants, 4.5.3), the planes
 that cross a map cell are one run of them, or two across the back direction
 (:func:`_column_planes`): exactly the cells each plane's 2-D DDA visits (4.5.4).
 The columns are drawn near ones first (:func:`_draw_order`).
@@ -19,8 +19,7 @@ import numpy as np
 from jaxgfx._src.camera import Camera, camera_basis
 from jaxgfx._src.voxel.grid import _running_sum
 from jaxgfx._src.voxel.planes import Segments
-from jaxgfx._src.voxel.traverse import _plane_init
-from jaxgfx._src.voxel.walk import _cell_exit, _once
+from jaxgfx._src.voxel.walk import _cell_exit, _once, _plane_init
 from jaxgfx._src.voxel.wide import _once_f
 
 __all__: list[str] = []
@@ -52,15 +51,15 @@ class _Planes(NamedTuple):
 
 
 def _plane_tables(rle, cam: Camera, seg: Segments, planes, *, rows: int, lod) -> _Planes:
-    """Each plane's constants (the one-cell walk's), sorted by x-z direction (step 1)."""
+    """Each plane's constants (:func:`~.walk._plane_init`), sorted by x-z direction (step 1)."""
     consts, c0 = jax.vmap(lambda p: _plane_init(rle, cam, seg, p, rows=rows, n_words=1))(planes)
     L = rle.levels
     ex, ez = cam.position[0], cam.position[2]
     hx, hz = consts.hx, consts.hz
-    # The walk switches to level l at the exit of the first level-(l-1) cell that
-    # leaves past lod 2^(l-1), into the parent of the cell across that exit
-    # (walk._next_cell): followed here cell by cell, in integers, as the walk
-    # does, since the level's first cell starts on a cell boundary.
+    # A plane's DDA switches to level l (4.5.4.1) at the exit of its first
+    # level-(l-1) cell that it leaves past lod 2^(l-1), into the parent of the
+    # cell across that exit: followed here cell by cell, in integers, since the
+    # level's first cell starts on a cell boundary.
     t_lev = [c0.t]
     ix, iz = c0.ix, c0.iz  # the walk's first cell (clipped into the map)
     exit_cell = jax.vmap(_cell_exit, in_axes=(0, None, 0, 0, None))

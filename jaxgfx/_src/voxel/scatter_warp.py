@@ -90,7 +90,7 @@ def _harvest(cam: Camera, seg: Segments, buffer: RayBuffer, span: int | None):
 
 
 def warp_texels(rle, cam: Camera, seg: Segments, buffer: RayBuffer, el: _Elements):
-    """Displays a scattered ray buffer (4.5.5, Eq. 4.6), as :func:`~.warp.warp_ray_buffer`.
+    """Displays a scattered ray buffer (4.5.5, Eq. 4.6), as :func:`~.warp.warp_lists` does lists.
 
     Every pixel reads the writers of its row in its nearest plane and the
     ``n`` planes on either side (``buffer.candidates``: (2 n + 1, H, W)) and

@@ -16,7 +16,7 @@ from jaxgfx._src.frames import BATCHING
 
 __all__ = ["RenderSettings"]
 
-_TRAVERSALS = ("auto", "wide", "narrow", "scatter")
+_TRAVERSALS = ("auto", "wide", "scatter")
 _BATCHINGS = BATCHING
 
 
@@ -37,24 +37,14 @@ class RenderSettings:
     Attributes:
         num_planes: ray-buffer plane budget (None:
             :func:`~jaxgfx.raycast.default_num_planes`).
-        max_steps: bound on the 2-D DDA cells per plane (None:
-            :func:`~jaxgfx.raycast.default_max_steps`).
         oversample: planes per pixel on each segment's far border (1 = thesis
             Eq. 4.4, default 2).
-        buffer_size: one-cell walk and wide traversal: drawn elements kept per plane
-            (None: ``max(64, max(W, H) // 2)``); see ``stats["buffer_overflow"]``.
-        pool_size: one-cell walk: drawn elements a pass keeps, its planes' lists
-            back to back (None: :func:`~jaxgfx.raycast.default_pool_size`).  A frame whose lists do
-            not fit is walked in passes, each warping the planes it walked
-            (``stats["passes"]``): the same frame.  The pool is a fresh buffer
-            every frame, cleared before use: one pool for the most a frame can
-            draw (47 MB at 512x384 with 2x1 AA) cost every frame its clearing and,
-            on the CPU, the first touch of its pages (``rle_bench``'s ``one_pool``
-            columns).
+        buffer_size: wide traversal: drawn elements kept per plane (None:
+            ``max(64, max(W, H) // 2)``); see ``stats["buffer_overflow"]``.
         refine_steps: if > 0, pixels whose ray entered no candidate element
             re-walk their own ray that many voxels from just before the
             neighbourhood's depth (not in the thesis).  None (default): 16 for
-            the walk's and the wide traversal's lists, 0 for the scatter, whose
+            the wide traversal's lists, 0 for the scatter, whose
             warp tests every pixel against the writers of three planes a
             fraction of a voxel apart: there the re-walk moved the acceptance
             views' agreement by at most 0.2 points and cost 7-20 % of a frame
@@ -64,8 +54,6 @@ class RenderSettings:
             the pixel's ray (default 1; 0 = thesis).
         refine_budget: largest number of re-walked pixels (None: ``W H / 32``); see
             ``stats["refine_overflow"]``.
-        elements_per_step: elements of a column handled per loop step (speed only;
-            default 4).
         planes_per_voxel: if > 0 (default 3), the planes cover only the screen
             rectangle of the scene box and are spaced at most ``1 / planes_per_voxel``
             voxels apart at its farthest depth (while the box is wholly in front of
@@ -73,22 +61,22 @@ class RenderSettings:
             agreement does not fall with distance; 0 = the thesis's spacing
             (:func:`~jaxgfx.raycast.screen_segments`).  It also raises the default
             ``num_planes`` by ``planes_per_voxel (X + Z)``.
-        traversal: ``"narrow"``: one cell per plane per loop step (thousands of
-            steps a frame, each cheap: XLA:CPU's fastest); ``"wide"``: a block of
-            cells per plane per step (tens of steps, each as wide as all planes:
-            what an accelerator needs, as each step is a kernel launch there);
-            ``"scatter"``: every element projected into the planes that cross its
-            cell, each texel keeping its first writer by a scatter-min of the
-            walk order (:mod:`~jaxgfx._src.voxel.scatter`: a few wide steps).
-            ``"auto"`` (default): ``"scatter"`` for a map within its
-            limits (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`), on every
-            platform; otherwise ``"narrow"`` where the program is lowered for the
-            CPU and ``"wide"`` elsewhere (``jax.lax.platform_dependent``).
+        traversal: ``"scatter"``: every element projected into the planes that
+            cross its cell, each texel keeping its first writer by a scatter-min
+            of the walk order (:mod:`~jaxgfx._src.voxel.scatter`: a few wide
+            steps a frame); ``"wide"``: each plane walked in blocks of cells, a
+            block per plane per loop step (:mod:`~jaxgfx._src.voxel.wide`: tens
+            of steps, each as wide as the planes).  ``"auto"`` (default):
+            ``"scatter"`` for a map within its limits
+            (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`), on every
+            platform; otherwise ``"wide"``, with 512 ``slots`` where the program
+            is lowered for the CPU (``jax.lax.platform_dependent``).
         block_cells: wide traversal: major-axis columns per block (default 16).
         block_elements: wide traversal: element slots per plane per step (None:
             ``max(2 max_elements, block_cells, 8)``; at least two columns).
         slots: wide traversal: planes stepped at once, a done plane's slot taking
-            the next plane (None: all planes every step, fewest steps).
+            the next plane (None: all planes every step, fewest steps; ``"auto"``
+            on the CPU: 512).
         window: scatter traversal: (element, plane) pairs per loop step (None:
             :func:`~jaxgfx._src.voxel.scatter.default_window`).
         texels: scatter traversal: size of the ray buffer, the planes' rows back
@@ -108,14 +96,11 @@ class RenderSettings:
     """
 
     num_planes: int | None = static_field(None)
-    max_steps: int | None = static_field(None)
     oversample: float = static_field(2.0)
     buffer_size: int | None = static_field(None)
-    pool_size: int | None = static_field(None)
     refine_steps: int | None = static_field(None)
     neighbors: int = static_field(1)
     refine_budget: int | None = static_field(None)
-    elements_per_step: int = static_field(4)
     planes_per_voxel: float = static_field(3.0)
     traversal: str = static_field("auto")
     block_cells: int = static_field(16)
@@ -130,14 +115,11 @@ class RenderSettings:
         # Normalised to Python ints / floats: equal settings hash alike (one compile).
         fields = dict(
             num_planes=_optional_int("num_planes", self.num_planes, 1),
-            max_steps=_optional_int("max_steps", self.max_steps, 1),
             oversample=check_float("oversample", self.oversample),
             buffer_size=_optional_int("buffer_size", self.buffer_size, 1),
-            pool_size=_optional_int("pool_size", self.pool_size, 1),
             refine_steps=_optional_int("refine_steps", self.refine_steps, 0),
             neighbors=check_int("neighbors", self.neighbors, low=0),
             refine_budget=_optional_int("refine_budget", self.refine_budget, 1),
-            elements_per_step=check_int("elements_per_step", self.elements_per_step, low=1),
             planes_per_voxel=check_float("planes_per_voxel", self.planes_per_voxel),
             block_cells=check_int("block_cells", self.block_cells, low=1),
             block_elements=_optional_int("block_elements", self.block_elements, 1),

@@ -1,11 +1,13 @@
-"""The per-plane cell walk of the ray caster and its culling bounds (thesis 4.5.4.1, 4.5.4.3).
+"""The per-plane walk of the ray caster: its start, its cells and its culling bounds (4.5.4).
 
-The 2-D DDA's moves (:func:`_cell_exit`, :func:`_next_cell`, with the jump over
-empty squares and the LOD band switch), the per-plane constants and loop state
-of :mod:`.traverse`, and the bounds that let a plane skip work without changing
-what it draws (not in the thesis): the rows whose rays can still meet the scene
-(:func:`_live_rows`) and the cheap step past a column that falls on rows already
-drawn (:func:`_free_step`).
+What the wide traversal (:mod:`.wide`) and the scatter's plane tables
+(:mod:`.scatter_planes`) share: each plane's constants and starting state
+(:func:`_plane_init`: its x-z direction, Eq. 4.5's terms, its entry into the map),
+the exact 2-D DDA's cell exit (:func:`_cell_exit`), an element's slopes and rows
+over a cell (:func:`_slopes`, :func:`_rows_of`), the front-to-back order of a
+column's elements (:func:`_unrank`), and a bound that lets a plane stop without
+changing what it draws (not in the thesis): the rows whose rays can still meet
+the scene (:func:`_live_rows`).
 """
 
 from __future__ import annotations
@@ -15,22 +17,18 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxgfx._src.camera import Camera, camera_basis
-from jaxgfx._src.voxel.codec import unpack_element
-from jaxgfx._src.voxel.grid import _cell_height, _level_tables, _map_column
+from jaxgfx._src.camera import Camera, camera_basis, focal_lengths
+from jaxgfx._src.voxel.codec import NO_ENTRY
+from jaxgfx._src.voxel.grid import _safe_div
+from jaxgfx._src.voxel.planes import Segments, plane_extent
 
-__all__: list[str] = []  # private helpers of traverse.py
+__all__: list[str] = []  # private helpers of wide.py and scatter_planes.py
 
 _TINY = 1e-6
-# Ray-buffer rows a column span's projection is widened by in the free step's
-# test: an element inside the span has other corner slopes, and their projection
-# may land a rounding error (~1e-4 rows at 1024-row columns) outside the span's.
-# A whole row would let through every cell whose column merely touches an open row.
-_ROW_EPS = 0.01
 
 
 # ---------------------------------------------------------------------------
-# Coverage rows (4.5.4.3), empty-space boxes, rows that can still meet the scene
+# Coverage rows (4.5.4.3), rows that can still meet the scene
 # ---------------------------------------------------------------------------
 
 
@@ -56,24 +54,6 @@ def _once(x):
     """
     top = True if x.dtype == jnp.bool_ else jnp.iinfo(x.dtype).max
     return jnp.min(jnp.stack([x, jnp.full_like(x, top)], axis=-1), axis=-1)
-
-
-def _empty_box(rle, ix, iz, lev, col, has_tile, sx, sz):
-    """Cells ``[x0, x1) x [z0, z1)`` around empty cell (ix, iz) known to be empty.
-
-    The square of chessboard radius ``empty_dist - 1``, or the whole tile
-    where no instance stands.
-    """
-    xl, zl = sx[lev], sz[lev]
-    safe = jnp.clip(col, 0, rle.empty_dist.shape[0] - 1)
-    r = jnp.maximum(rle.empty_dist[safe].astype(jnp.int32) - 1, 0)
-    bx0 = jnp.floor_divide(ix, xl) * xl
-    bz0 = jnp.floor_divide(iz, zl) * zl
-    x0 = jnp.where(has_tile, ix - r, bx0)
-    x1 = jnp.where(has_tile, ix + r + 1, bx0 + xl)
-    z0 = jnp.where(has_tile, iz - r, bz0)
-    z1 = jnp.where(has_tile, iz + r + 1, bz0 + zl)
-    return x0, x1, z0, z1
 
 
 def _scene_top(rle) -> float:
@@ -153,25 +133,8 @@ class _PlaneConsts(NamedTuple):
     q_num: jax.Array  # Eq. 4.5 numerator, slope term
 
 
-class _ChunkLoop(NamedTuple):
-    """State of :func:`~.traverse.traverse_lists`' chunk loops (per-plane arrays: padded planes)."""
-
-    lists: jax.Array  # (size, 5, K) int32, the chunk's list buffer (reused by every chunk)
-    pool: jax.Array  # (5, pool_size) int32, the lists of the pass's committed chunks
-    used: jax.Array  # () int32, pool entries taken
-    start: jax.Array  # (Pp,) int32, each plane's first pool entry
-    drawn: jax.Array  # (Pp,) int32, each plane's entries in the pool
-    cov: jax.Array  # (Pp, W) uint32, coverage maps
-    first: jax.Array  # (Pp, W) int32, first drawing entry per coverage word
-    stats: jax.Array  # (Pp, 4) int32
-    steps: jax.Array  # () int32, dependent loop steps
-    full: jax.Array  # () bool, a chunk did not fit the pass's pool
-    pass_of: jax.Array  # (Pp,) int32, the pass that committed each plane (-1: none yet)
-    pass_id: jax.Array  # () int32, the current pass (from 1)
-
-
 class _PlaneState(NamedTuple):
-    """Loop state of one plane in :func:`traverse_planes` (vmap adds a leading plane axis)."""
+    """One plane at the start of its walk (:func:`_plane_init`; vmap adds a plane axis)."""
 
     ix: jax.Array  # () int32, map cell x at level ``lev``
     iz: jax.Array  # () int32, map cell z at level ``lev``
@@ -184,8 +147,6 @@ class _PlaneState(NamedTuple):
     first: jax.Array  # (ceil(rows / 32),) int32, list entry that first drew in each word
     nbuf: jax.Array  # () int32, elements drawn so far (may exceed K: overflow)
     stats: jax.Array  # (3,) int32, elements in visited columns / processed / drawn
-    k: jax.Array  # () int32, elements of the current column already handled
-    it: jax.Array  # () int32, loop steps taken
 
 
 def _cell_exit(consts: _PlaneConsts, cam: Camera, ix, iz, lev):
@@ -201,124 +162,70 @@ def _cell_exit(consts: _PlaneConsts, cam: Camera, ix, iz, lev):
     return c, jnp.minimum(jnp.minimum(nx, nz), consts.t_far), nx <= nz
 
 
-def _next_cell(
-    rle, consts, cam, ix, iz, lev, c, t_out, go_x, col, has_tile, empty, *, lod_distance
-):
-    """The cell the walk enters after cell (ix, iz, lev), exited at ``t_out``.
+# ---------------------------------------------------------------------------
+# A plane's start and a column's order
+# ---------------------------------------------------------------------------
 
-    Returns ``(ix, iz, lev, t, leaves)``: the next cell, the walk's t there and
-    whether it lies outside the map.  ``empty``: the cell is known empty, so the
-    walk may jump over the empty square around it.
+
+def _unrank(rank, n, m):
+    """The index of a column's ``rank``-th element front to back.
+
+    A column's ``n`` elements are indexed from the top; the first ``m`` lie above
+    the eye.  Rays that hit elements below the eye descend, so those come first,
+    top down (index ``m`` on); rays that hit elements above it ascend, so those
+    come next, bottom up (index ``m - 1`` down).  The two groups never compete
+    for one ray, so one order serves both.
     """
-    hx, hz, inv_x, inv_z, t_far = consts.hx, consts.hz, consts.inv_x, consts.inv_z, consts.t_far
-    L, _, sx, _, sz = _level_tables(rle)
-    ex, ez = cam.position[0], cam.position[2]
-    big = jnp.float32(1e30)
-    bx = (hx > 0).astype(jnp.int32)
-    bz = (hz > 0).astype(jnp.int32)
-    ix_n = jnp.where(go_x, ix + 2 * bx - 1, ix)
-    iz_n = jnp.where(go_x, iz, iz + 2 * bz - 1)
-    # Switch LOD by distance (4.5.4.1): level l from lod_distance * 2^(l-1)
-    # on, so a voxel covers about the same screen size in every band.
-    band = lod_distance * jnp.left_shift(1, lev).astype(jnp.float32)
-    # Empty-space skipping (not in the thesis): most cells a plane crosses are
-    # empty, so from an empty cell the DDA jumps to the first cell after the
-    # empty square around it (its tile's ``empty_dist``, or the whole tile
-    # where no instance stands).  It stops short at the LOD band's end, in
-    # the cell holding it, so the non-empty cells visited and the level
-    # switches are exactly those of the plain DDA.
-    x0, x1, z0, z1 = _empty_box(rle, ix, iz, lev, col, has_tile, sx, sz)
-    ex_x = jnp.where(hx > 0, x1, x0).astype(jnp.float32) * c
-    ex_z = jnp.where(hz > 0, z1, z0).astype(jnp.float32) * c
-    bx_t = jnp.where(jnp.abs(hx) < 1e-12, big, (ex_x - ex) * inv_x)
-    bz_t = jnp.where(jnp.abs(hz) < 1e-12, big, (ex_z - ez) * inv_z)
-    t_box = jnp.minimum(jnp.minimum(bx_t, bz_t), t_far)
-    at_band = t_box >= band
-    t_jump = jnp.where(at_band, band, t_box)
-    px = jnp.floor((ex + hx * t_jump) / c).astype(jnp.int32)
-    pz = jnp.floor((ez + hz * t_jump) / c).astype(jnp.int32)
-    # Leaving the box, the exit axis's index is exact; the other comes from
-    # the exit point, inside the box.
-    box_x = bx_t <= bz_t
-    jx = jnp.where(at_band | ~box_x, jnp.clip(px, x0, x1 - 1), jnp.where(hx > 0, x1, x0 - 1))
-    jz = jnp.where(at_band | box_x, jnp.clip(pz, z0, z1 - 1), jnp.where(hz > 0, z1, z0 - 1))
-    # Entry of the target cell (its near faces), the DDA's t there.
-    t_jx = ((jx + 1 - bx).astype(jnp.float32) * c - ex) * inv_x
-    t_jz = ((jz + 1 - bz).astype(jnp.float32) * c - ez) * inv_z
-    t_jx = jnp.where(jnp.abs(hx) < 1e-12, -big, t_jx)
-    t_jz = jnp.where(jnp.abs(hz) < 1e-12, -big, t_jz)
-    stays = (jx == ix) & (jz == iz)  # float rounding at the band's end: plain step
-    skip = empty & (t_out < band) & (t_out < t_far) & ~stays
-    ix_n = jnp.where(skip, jx, ix_n)
-    iz_n = jnp.where(skip, jz, iz_n)
-    t_out = jnp.where(skip, jnp.maximum(jnp.maximum(t_jx, t_jz), t_out), t_out)
-    coarser = (t_out >= band) & (lev < L - 1) & ~skip
-    ix_n = jnp.where(coarser, ix_n >> 1, ix_n)
-    iz_n = jnp.where(coarser, iz_n >> 1, iz_n)
-    lev_n = jnp.where(coarser, lev + 1, lev)
-    tx, tz = rle.tiles.shape
-    leaves = (ix_n < 0) | (iz_n < 0) | (ix_n >= tx * sx[lev_n]) | (iz_n >= tz * sz[lev_n])
-    return ix_n, iz_n, lev_n, t_out, leaves
+    return jnp.where(rank < n - m, m + rank, m - 1 - (rank - (n - m)))
 
 
-def _free_step(
-    rle, cam: Camera, consts: _PlaneConsts, carry: _PlaneState, *, lod_distance, n_words
-):
-    """One cheap step of one plane: passes a cell that cannot draw (not in the thesis).
-
-    A cell is passed when it is empty or when its whole column, from the floor
-    to the top of its first element (no voxel of the column is higher),
-    projects only onto rows already drawn (Eq. 4.5 over the cell's t range,
-    ``_ROW_EPS`` wider for rounding): no element of it could pass the coverage
-    test, so :func:`_plane_step` would draw nothing there.  This is the
-    floating horizon (4.5.4.3) applied to a whole column before its elements
-    are decoded; a plane looking across a forest crosses mostly such cells
-    (hidden trunks and crowns, gaps), and they cost a few reads each instead
-    of a full step.  Other cells, a column part-way done (``k > 0``) and done
-    planes are left unchanged.
-    """
-    L, off, sx, sy, sz = _level_tables(rle)
-    _, _, forward = camera_basis(cam)
-    ey = cam.position[1]
-    ix, iz, lev, t, done = carry.ix, carry.iz, carry.lev, carry.t, carry.done
-    c, t_out, go_x = _cell_exit(consts, cam, ix, iz, lev)
-    in_map, has_tile, col = _map_column(rle, ix, iz, lev, off, sx, sz)
-    inside = in_map & has_tile
-    safe = jnp.where(inside, col, 0)
-    n = jnp.where(inside, rle.count[safe].astype(jnp.int32), 0)
-    skip0 = unpack_element(rle.first[safe].astype(jnp.int32))[0]
-    y_hi = (sy[lev] - skip0).astype(jnp.float32) * _cell_height(rle, c)
-    inv_in = 1.0 / jnp.maximum(t, _TINY)
-    inv_out = 1.0 / jnp.maximum(t_out, jnp.maximum(t, _TINY))
-    # Slopes of the column's span [0, y_hi] over the cell, as an element's.
-    e_smin, e_smax = _slopes(consts, 0.0, y_hi, ey, inv_in, inv_out)
-    r0, r1 = _rows_of(consts, e_smin, e_smax, forward[1], _ROW_EPS)
-    r0 = jnp.maximum(r0, carry.lo)
-    r1 = jnp.minimum(r1, carry.hi)
-    r0, r1 = _once(r0), _once(r1)
-    fresh = jnp.any((_row_mask(r0[None], r1[None], n_words)[0] & ~carry.cov) != 0)
-    go = ((n == 0) | ~fresh | (e_smin > e_smax)) & ~done & (carry.k == 0)
-    ix_n, iz_n, lev_n, t_n, leaves = _next_cell(
-        rle,
-        consts,
-        cam,
-        ix,
-        iz,
-        lev,
-        c,
-        t_out,
-        go_x,
-        col,
-        has_tile,
-        in_map & (n == 0),
-        lod_distance=lod_distance,
+def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, n_words: int):
+    """Per-plane constants and the initial loop state (coverage of ``n_words`` words)."""
+    # s_min / s_max: slopes visible in this plane, to clip element slopes to the screen.
+    h, lo, hi, s_min, s_max = plane_extent(cam, seg, plane, rows=rows)
+    s_idx = jnp.clip(jnp.searchsorted(seg.start + seg.count, plane, side="right"), 0, 3)
+    vertical = s_idx < 2
+    right, up, forward = camera_basis(cam)
+    fx, fy = focal_lengths(cam)
+    eye = cam.position
+    ex, ez = eye[0], eye[2]
+    hx, hz = h[0], h[1]
+    inv_x = _safe_div(1.0, hx, 1e-12)
+    inv_z = _safe_div(1.0, hz, 1e-12)
+    # Eq. 4.5 in the plane: the ray-buffer coordinate of slope s is the
+    # projective map (p + q s) / (g + d s) of the plane's camera-space terms.
+    hr = right[0] * hx + right[2] * hz
+    hu = up[0] * hx + up[2] * hz
+    hf = forward[0] * hx + forward[2] * hz
+    p_num = jnp.where(vertical, 0.5 * cam.height * hf - fy * hu, 0.5 * cam.width * hf + fx * hr)
+    q_num = jnp.where(
+        vertical,
+        0.5 * cam.height * forward[1] - fy * up[1],
+        0.5 * cam.width * forward[1] + fx * right[1],
     )
-    new = carry._replace(
-        ix=jnp.where(go, ix_n, ix),
-        iz=jnp.where(go, iz_n, iz),
-        lev=jnp.where(go, lev_n, lev),
-        t=jnp.where(go, t_n, t),
-        done=done | (go & ((t_n >= consts.t_far) | leaves)),
-        stats=carry.stats.at[0].add(jnp.where(go, n, 0)),
+    # Entry into the map's x-z box (2-D slab test).
+    X0, Z0 = float(rle.shape[0]), float(rle.shape[2])
+    tx0, tx1 = (0.0 - ex) * inv_x, (X0 - ex) * inv_x
+    tz0, tz1 = (0.0 - ez) * inv_z, (Z0 - ez) * inv_z
+    t_enter = jnp.maximum(jnp.maximum(jnp.minimum(tx0, tx1), jnp.minimum(tz0, tz1)), 0.0)
+    t_exit = jnp.minimum(jnp.maximum(tx0, tx1), jnp.maximum(tz0, tz1))
+    t_far = jnp.minimum(t_exit, cam.far)
+    p0x, p0z = ex + hx * t_enter, ez + hz * t_enter
+    ix0 = jnp.clip(jnp.floor(p0x), 0, X0 - 1).astype(jnp.int32)
+    iz0 = jnp.clip(jnp.floor(p0z), 0, Z0 - 1).astype(jnp.int32)
+    done0 = (t_enter >= t_far) | (lo >= hi)
+    carry0 = _PlaneState(
+        ix=ix0,
+        iz=iz0,
+        lev=jnp.int32(0),
+        t=t_enter,
+        done=done0,
+        lo=lo,
+        hi=hi,
+        cov=jnp.zeros((n_words,), jnp.uint32),
+        first=jnp.full((n_words,), NO_ENTRY, jnp.int32),
+        nbuf=jnp.int32(0),
+        stats=jnp.zeros(3, jnp.int32),
     )
-    return new, go
+    consts = _PlaneConsts(hx, hz, inv_x, inv_z, t_far, s_min, s_max, hf, p_num, q_num)
+    return consts, carry0

@@ -2,9 +2,11 @@
 
 Every screen pixel finds its ray-buffer texel (:func:`ray_buffer_coords`) and
 intersects its own ray with that texel's drawn element, and with those of the
-adjacent planes (:func:`warp_ray_buffer`).  Pixels whose ray entered none of them
-re-walk a few voxels of their own ray through the RLE columns (:func:`refine_hits`,
-not in the thesis).
+adjacent planes (:func:`_nearest_candidate`): from the wide traversal's lists
+(:func:`warp_lists`) or from the scatter's texels
+(:func:`~jaxgfx._src.voxel.scatter_warp.warp_texels`).  Pixels whose ray entered
+none of them re-walk a few voxels of their own ray through the RLE columns
+(:func:`refine_hits`, not in the thesis).
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, camera_basis, pixel_rays, screen_to_camera
 from jaxgfx._src.voxel.codec import (
-    ELEMENT_WORDS,
     NO_ENTRY,
     WORD_COLOR,
     WORD_HEIGHTS,
@@ -36,18 +37,10 @@ from jaxgfx._src.voxel.planes import Segments, _sgn_w
 
 __all__ = [
     "ray_buffer_coords",
-    "warp_ray_buffer",
     "warp_lists",
-    "empty_warp_tiles",
-    "warp_tiles_image",
-    "NO_CANDIDATE",
     "refine_pixel",
     "refine_hits",
 ]
-
-NO_CANDIDATE = 2**15 - 1
-"""Candidate order of a pixel that no candidate of a pass reached (after every real one)."""
-
 
 # ---------------------------------------------------------------------------
 # 4.5.5 Ray buffer -> screen (Eq. 4.6)
@@ -122,14 +115,8 @@ def _box_hit(rle, fields, origins, dirs):
     return t_enter, t_exit
 
 
-def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighbors: int = 1):
-    """Displays the ray buffer on the screen (4.5.5, Eq. 4.6).
-
-    The ray buffer is kept as, per plane, the list of drawn RLE elements and
-    the index of each texel's nearest element.  Every screen pixel
-    looks up its texel (:func:`ray_buffer_coords`) and intersects its own ray
-    with that element's box, so the colour along the element is perspective
-    correct and the depth exact for the pixel.
+def _nearest_candidate(rle, lookup, color_of, origins, dirs, *, neighbors: int):
+    """The warp's per-pixel choice among its texel and the adjacent planes' (4.5.5, 4.5.6).
 
     A pixel's ray lies between two planes, so its first voxel need not be the
     one its nearest texel saw (voxel edges, silhouettes).  With
@@ -141,51 +128,6 @@ def warp_ray_buffer(rle, cam: Camera, seg: Segments, texels, elements, *, neighb
     so the result is never in front of the true first hit; a pixel whose ray
     enters none of them keeps its nearest texel's element (the point of the
     ray closest to that box).
-
-    Args:
-        rle: the scene.
-        cam: camera.
-        seg: the frame's :class:`Segments`.
-        texels: (P, n) int32 per-texel element indices from :func:`traverse_plane`.
-        elements: (P, 5, K) int32 drawn-element lists from :func:`traverse_plane`
-            (see :func:`jaxgfx._src.voxel.codec.pack_drawn`).
-        neighbors: static number of planes on either side tested per pixel
-            (0 = the nearest texel only, as in the thesis).
-
-    Returns:
-        ``(color (H, W, 3), depth (H, W), entered (H, W) bool)``; ``entered``
-        is False where the pixel's ray entered none of the candidate boxes.
-    """
-    P, K = elements.shape[0], elements.shape[2]
-    n_tree = texels.shape[1]
-    texel = texels.reshape(-1)
-    # Scalar gathers from the flat (free) view: word k of entry e of plane p
-    # is at (p 5 + k) K + e.  XLA:CPU gathers scalars from 1-D arrays much
-    # faster than rows, and per-word copies of the lists would cost more
-    # than the gathers.
-    flat = elements.reshape(-1)
-    word = lambda k, idx: jnp.take(flat, idx + k * K, mode="clip")  # noqa: E731
-    st, i0, cnt, row, ok = _ray_buffer_texel(cam, seg)
-    origins, dirs = pixel_rays(cam, normalize=False)
-    row_ok = ok & (row >= 0) & (row < n_tree)
-    row = jnp.clip(row, 0, n_tree - 1)
-
-    def lookup(di):
-        i = jnp.clip(i0 + di, 0, jnp.maximum(cnt - 1, 0))
-        plane = jnp.clip(st + i, 0, P - 1)
-        entry = jnp.take(texel, plane * n_tree + row, mode="clip")
-        hit = row_ok & (entry < K)
-        idx = plane * (ELEMENT_WORDS * K) + jnp.where(hit, entry, 0)
-        box = unpack_drawn_box(*(word(k, idx) for k in (WORD_HEIGHTS, WORD_X, WORD_Z_LEVEL)))
-        return hit, idx, box
-
-    return _nearest_candidate(
-        rle, lookup, lambda idx: word(WORD_COLOR, idx), origins, dirs, neighbors=neighbors
-    )
-
-
-def _nearest_candidate(rle, lookup, color_of, origins, dirs, *, neighbors: int):
-    """The warp's per-pixel choice among its texel and the adjacent planes' (4.5.5, 4.5.6).
 
     Args:
         rle: the scene.
@@ -252,14 +194,16 @@ def warp_lists(
     batch_tiles: int | None = None,
     scan_width: int = 1,
     with_steps: bool = False,
-    plane_mask=None,
-    tiles=None,
 ):
-    """:func:`warp_ray_buffer` from the unresolved lists, touching only covered pixels.
+    """Displays the ray buffer from the wide traversal's lists (4.5.5, Eq. 4.6).
 
-    Same frame as :func:`warp_ray_buffer` on :func:`~jaxgfx.raycast.traverse_planes`'s
-    texels, bit for bit (tested), at a cost that follows the pixels the scene
-    covers rather than the screen.  A cheap full-screen pass tests each pixel's
+    Every screen pixel looks up its texel (:func:`ray_buffer_coords`) and
+    intersects its own ray with the texel's writer, the first element of its
+    plane's list covering the row, so the colour along the element is
+    perspective correct and the depth exact for the pixel; with ``neighbors``
+    it also tests the adjacent planes' texels (:func:`_nearest_candidate`'s
+    choice).  The cost follows the pixels the scene covers rather than the
+    screen.  A cheap full-screen pass tests each pixel's
     candidate texels against the planes' 1-bit coverage maps; only the
     ``tile x tile`` screen tiles holding a covered pixel are warped, a batch of
     tiles per loop step.  A candidate texel's writer is found by scanning its
@@ -271,11 +215,12 @@ def warp_lists(
     Args:
         pool, start, drawn, coverage: the lists (``(5, N)`` words, each plane's
             from its ``start``, ``drawn`` long) and the planes' coverage maps
-            from :func:`~jaxgfx.raycast.traverse_lists`.
+            from :func:`~jaxgfx._src.voxel.wide.traverse_wide`.
         first: optional (P, W) int32, each coverage word's first drawing entry
-            (:func:`~jaxgfx.raycast.traverse_lists`); None scans every list from
-            its head.  The same frame either way.
-        neighbors: static, as in :func:`warp_ray_buffer`.
+            (:func:`~jaxgfx._src.voxel.wide.traverse_wide`); None scans every list
+            from its head.  The same frame either way.
+        neighbors: static number of planes on either side tested per pixel
+            (0 = the nearest texel only, as in the thesis).
         tile: static screen tile side in pixels (speed only).
         batch_tiles: static tiles warped per loop step (None: ``4096 / tile^2``;
             at least the screen's tile count: every busy tile in one step, so the
@@ -284,20 +229,12 @@ def warp_lists(
             frame; fewer, wider steps).
         with_steps: also return the dependent loop steps taken (list-scan steps
             summed over the batches).
-        plane_mask: optional (P,) bool, the planes whose lists are present (one
-            pass of :func:`~jaxgfx.raycast.traverse_lists`): a pixel's other
-            candidates are left out.  Requires ``tiles``.
-        tiles: with ``plane_mask``: the frame's warp so far as tiles
-            (:func:`empty_warp_tiles`).  A pixel keeps the candidate that comes
-            first of its choice so far and this pass's (nearer entry, then the
-            candidate order), which is the candidate one warp over all planes
-            picks, so the passes of a frame give that warp's frame
-            (:func:`warp_tiles_image`).
 
     Returns:
-        ``(color (H, W, 3), depth (H, W), entered (H, W) bool)`` as
-        :func:`warp_ray_buffer` (with ``tiles``: the updated tiles instead), and
-        ``steps`` () int32 with ``with_steps``.
+        ``(color (H, W, 3), depth (H, W), entered (H, W) bool)``, ``entered``
+        False where the pixel's ray entered none of its candidate boxes (it
+        keeps its nearest texel's element), and ``steps`` () int32 with
+        ``with_steps``.
     """
     P, cap = coverage.shape[0], pool.shape[1]
     n_words = coverage.shape[1]
@@ -322,8 +259,6 @@ def warp_lists(
     row_ok, row, planes = candidates(px0, py0)
     words = jnp.take(cov_flat, planes * n_words + (row >> 5)[None], mode="clip")
     bits = (words >> (row & 31).astype(jnp.uint32)[None]) & jnp.uint32(1)
-    if plane_mask is not None:
-        bits = jnp.where(plane_mask[planes], bits, jnp.uint32(0))
     covered = row_ok & jnp.any(bits != 0, axis=0)
     ty, tx = -(-H // tile), -(-W // tile)
     n_tiles = ty * tx
@@ -348,9 +283,6 @@ def warp_lists(
         dirs = gx[..., None] * right + gy[..., None] * up + forward
         origins = jnp.broadcast_to(cam.position, dirs.shape)
         n = jnp.where(row_ok[None], drawn[planes], 0)
-        if plane_mask is not None:
-            present = plane_mask[planes]
-            n = jnp.where(present, n, 0)
         base = start[planes]
         none = jnp.int32(NO_ENTRY)
         if first is None:
@@ -387,14 +319,7 @@ def warp_lists(
         cand_t = jnp.where(entered, jnp.maximum(t_enter, 0.0), jnp.inf)
         # Nearest candidate the ray enters; the nearest texel wins ties and
         # keeps the pixel where the ray enters none.
-        best = jnp.argmin(cand_t, axis=0)
-        if plane_mask is not None:
-            # As one pass over all planes chooses: the nearest entered candidate,
-            # else the nearest texel's (only from the pass that holds its plane).
-            none = ~jnp.isfinite(jnp.min(cand_t, axis=0))
-            key_i = jnp.where(none, jnp.where(present[0], 0, NO_CANDIDATE), best)
-            key_i = key_i.astype(jnp.int16)
-        best = best[None]
+        best = jnp.argmin(cand_t, axis=0)[None]
         pick = lambda a: jnp.take_along_axis(a, best, axis=0)[0]  # noqa: E731
         box_b = tuple(pick(v) for v in box)
         t_enter, t_exit = _box_hit(rle, box_b, origins, dirs)
@@ -402,10 +327,6 @@ def warp_lists(
             rle, pick(hit), t_enter, t_exit, box_b, word(WORD_COLOR, pick(idx)), origins, dirs
         )
         out = (color, depth, jnp.any(entered, axis=0))
-        if plane_mask is not None:
-            shape = (batch, tile * tile)
-            old = tuple(jnp.take(buf, tid, axis=0, mode="clip") for buf in bufs)
-            out = _merge_choice(old, tuple(v.reshape(shape + v.shape[3:]) for v in out + (key_i,)))
         # Tile ids past the busy ones are n_tiles: dropped.
         bufs = tuple(
             buf.at[tid].set(v.reshape((batch,) + buf.shape[1:]), mode="drop")
@@ -413,67 +334,22 @@ def warp_lists(
         )
         return bufs, steps + taken
 
-    if plane_mask is None:
-        bufs = empty_warp_tiles(cam, tile)[:3]
-    else:
-        if tiles is None:
-            raise ValueError("warp_lists: plane_mask needs tiles (empty_warp_tiles)")
-        bufs = tiles
+    # The frame as tile x tile blocks of pixels, row by row: nothing drawn yet.
+    bufs = (
+        jnp.zeros((n_tiles, tile * tile, 3), jnp.float32),
+        jnp.full((n_tiles, tile * tile), jnp.inf, jnp.float32),
+        jnp.zeros((n_tiles, tile * tile), bool),
+    )
     bufs, steps = jax.lax.fori_loop(
         0, (n_busy + batch - 1) // batch, warp_batch, (bufs, jnp.int32(0))
     )
-    out = bufs if plane_mask is not None else warp_tiles_image(cam, bufs, tile)
-    return out + (steps,) if with_steps else out
-
-
-def empty_warp_tiles(cam: Camera, tile: int = 8):
-    """A frame's warp before any pass (:func:`warp_lists` ``tiles``): nothing drawn.
-
-    Returns:
-        ``(color (T, tile^2, 3), depth (T, tile^2), entered (T, tile^2) bool,
-        order (T, tile^2) int16)`` over the ``T`` screen tiles of ``tile x tile``
-        pixels, row by row; ``order`` is the chosen candidate's place
-        (:data:`NO_CANDIDATE`: none yet).
-    """
-    n = -(-cam.height // tile) * -(-cam.width // tile)
-    return (
-        jnp.zeros((n, tile * tile, 3), jnp.float32),
-        jnp.full((n, tile * tile), jnp.inf, jnp.float32),
-        jnp.zeros((n, tile * tile), bool),
-        jnp.full((n, tile * tile), NO_CANDIDATE, jnp.int16),
-    )
-
-
-def warp_tiles_image(cam: Camera, tiles, tile: int = 8):
-    """``(color (H, W, 3), depth (H, W), entered (H, W))`` of warp tiles."""
-    H, W = cam.height, cam.width
-    ty, tx = -(-H // tile), -(-W // tile)
 
     def image(buf):
         img = buf.reshape((ty, tx, tile, tile) + buf.shape[2:]).swapaxes(1, 2)
         return img.reshape((ty * tile, tx * tile) + buf.shape[2:])[:H, :W]
 
-    return tuple(image(b) for b in tiles[:3])
-
-
-def _merge_choice(a, b):
-    """Per pixel, the warp choice of ``a`` or ``b`` that comes first (passes of one frame).
-
-    ``(color, depth, entered, order)`` each; the pixel keeps the nearer entered
-    candidate, on a tie (or where neither entered) the one earlier in the
-    candidate order, and is entered if either is.
-    """
-    ca, da, ea, ia = a
-    cb, db, eb, ib = b
-    ta = jnp.where(ea, da, jnp.inf)
-    tb = jnp.where(eb, db, jnp.inf)
-    take_b = (tb < ta) | ((tb == ta) & (ib < ia))
-    return (
-        jnp.where(take_b[..., None], cb, ca),
-        jnp.where(take_b, db, da),
-        ea | eb,
-        jnp.where(take_b, ib, ia),
-    )
+    out = tuple(image(b) for b in bufs)
+    return out + (steps,) if with_steps else out
 
 
 # ---------------------------------------------------------------------------

@@ -1,26 +1,26 @@
 """The per-plane traversal in wide steps: a block of cells per plane per loop step (thesis 4.5.4).
 
-:func:`traverse_wide` draws the same kind of ray-buffer lists as
-:func:`~jaxgfx._src.voxel.traverse.traverse_lists` (every plane's drawn RLE elements,
-front to back, with the planes' 1-bit coverage maps), so the warp
-(:func:`~jaxgfx.raycast.warp_lists`) reads either.  What differs is the shape of
-the work.  One loop step moves every plane of the frame over a *block*: up to
-``block_cells`` cells of its line along the major axis of its x-z direction, at
-one mip level.  The exact 2-D DDA's cells for that stretch have a closed form:
-a line whose slope is at most one crosses one or two cells per major-axis
-column (the second where it crosses the minor axis), so the block's cells are
-the entry and exit cells of consecutive columns.  The block ends where the
+:func:`traverse_wide` draws the ray buffer as lists: every plane's drawn RLE
+elements, front to back, with the planes' 1-bit coverage maps, which the warp
+(:func:`~jaxgfx._src.voxel.warp.warp_lists`) reads.  It is the renderer's walk for a
+map beyond the scatter's limits
+(:func:`~jaxgfx._src.voxel.scatter.scatter_limits`).  Where the thesis walks one
+cell per plane per step, one loop step moves every plane of the frame over a
+*block*: up to ``block_cells`` cells of its line along the major axis of its x-z
+direction, at one mip level.  The exact 2-D DDA's cells for that stretch have a
+closed form: a line whose slope is at most one crosses one or two cells per
+major-axis column (the second where it crosses the minor axis), so the block's
+cells are the entry and exit cells of consecutive columns.  The block ends where the
 column's LOD band ends (4.5.4.1: mip level ``l`` from ``lod_distance 2^(l-1)``),
-where the map or the far limit ends, or before the column whose elements would
-pass ``block_elements``; the elements of its cells are packed into
-``block_elements`` slots in walk order (cell by cell, each column's
-elements front to back), projected to ray-buffer rows (Eq. 4.5) and culled
-against the floating horizon and the coverage map as they stood before the
-step (4.5.4.3).  An element hidden only by another element of the same block is
-therefore drawn as well; it comes after its occluder in the list, so the warp,
-which takes a row's first covering entry, shows the same texel.  After the step
-the coverage map takes the block's drawn rows and the floating horizon jumps
-over every drawn row at its ends.
+where the map or the far limit ends, or before the column whose elements would pass
+``block_elements``; the elements of its cells are packed into ``block_elements``
+slots in walk order (cell by cell, each column's elements front to back), projected
+to ray-buffer rows (Eq. 4.5) and culled against the floating horizon and the
+coverage map as they stood before the step (4.5.4.3).  An element hidden only by
+another element of the same block is therefore drawn as well; it comes after its
+occluder in the list, so the warp, which takes a row's first covering entry, shows
+the same texel.  After the step the coverage map takes the block's drawn rows and
+the floating horizon jumps over every drawn row at its ends.
 
 The number of loop steps per frame is the number of blocks of the plane that
 needs the most, so a frame takes tens of steps, each as wide as all planes of
@@ -47,16 +47,17 @@ from jaxgfx._src.voxel.grid import (
     _prefix_sum,
 )
 from jaxgfx._src.voxel.planes import Segments
-from jaxgfx._src.voxel.traverse import _plane_init, _unrank
 from jaxgfx._src.voxel.walk import (
     _TINY,
     _live_rows,
     _once,
+    _plane_init,
     _PlaneConsts,
     _row_mask,
     _rows_of,
     _scene_top,
     _slopes,
+    _unrank,
 )
 
 __all__ = ["traverse_wide", "default_block_elements"]
@@ -260,7 +261,7 @@ def _wide_step(
     g = lambda a: a[cell]  # noqa: E731
     nc = g(n)
     e_safe = _once(g(safe))
-    # Front-to-back rank within the cell's column, as the one-cell walk orders it.
+    # Front-to-back rank within the cell's column, as the thesis's walk orders it.
     rank = slot - g(start)
     jj = _once(jnp.clip(_unrank(rank, nc, above[e_safe]), 0, rle.max_elements - 1))
     top, bottom, valid, drawn_before = (
@@ -360,9 +361,15 @@ def traverse_wide(
 
     Returns:
         ``(pool (5, P K) int32, start (P,), drawn (P,), coverage (P, W) uint32,
-        first (P, W) int32, stats (P, 4) int32, iterations () int32)``: the lists of
-        :func:`~jaxgfx._src.voxel.traverse.traverse_lists` (plane ``p``'s from
-        ``p K``) and the loop steps taken.
+        first (P, W) int32, stats (P, 4) int32, iterations () int32)`` with ``W =
+        ceil(rows / 32)``: every plane's drawn elements front to back, plane ``p``'s
+        from ``p K`` in the pool (row range, top / bottom voxel, colour index, cell
+        x, z, level; :func:`~jaxgfx._src.voxel.codec.pack_drawn`), how many of them
+        it kept, the column's 1-bit coverage map (rows drawn), the list entry that
+        first drew in each coverage word (``NO_ENTRY`` for none; a row's writer
+        comes at or after its word's), the counts of elements in the visited
+        columns, elements processed before the plane was done, elements drawn and
+        drawn elements dropped by a full list; and the loop steps taken.
     """
     E = rle.max_elements
     K = int(block_cells)
