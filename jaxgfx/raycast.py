@@ -20,8 +20,8 @@ A reader's table of contents: thesis section -> function (implementation in
     :func:`unpack_element` (``codec``); the pointer map and columns (Fig. 4.11):
     :class:`RLEVolume`, :func:`encode_rle`, :func:`decode_rle`, :func:`rle_stats`
     (Tables 4.1, 4.2), :func:`place_instances` (shared columns on a tile grid),
-    :func:`share_columns` (copies at any position share their column tails), :func:`as_jax`, and
-    :func:`empty_space_distance` (not in the thesis) (``encode``).
+    :func:`share_columns` (copies at any position share their column tails) and
+    :func:`as_jax` (``encode``).
 4.4.7 Level of detail: :func:`downsample_voxels`; ``encode_rle(..., levels=L)`` (and
     ``mips="column"``, not in the thesis: levels that keep the heights, so LOD bands join
     without steps); :func:`lod_distance_for` (the band length for a cell size on screen).
@@ -68,7 +68,6 @@ from jaxgfx._src.voxel.encode import MIPS as MIPS
 from jaxgfx._src.voxel.encode import RLEVolume as RLEVolume
 from jaxgfx._src.voxel.encode import as_jax as as_jax
 from jaxgfx._src.voxel.encode import decode_rle as decode_rle
-from jaxgfx._src.voxel.encode import empty_space_distance as empty_space_distance
 from jaxgfx._src.voxel.encode import encode_rle as encode_rle
 from jaxgfx._src.voxel.encode import place_instances as place_instances
 from jaxgfx._src.voxel.encode import rle_stats as rle_stats
@@ -148,7 +147,6 @@ __all__ = [
     "rle_stats",
     "place_instances",
     "share_columns",
-    "empty_space_distance",
     "as_jax",
     "downsample_voxels",
     # 4.5 rendering

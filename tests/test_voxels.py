@@ -185,31 +185,6 @@ def test_procedural_tree_seeded():
     assert a.coords[:, 1].min() == 0
 
 
-@pytest.mark.parametrize("periodic", [False, True])
-def test_empty_space_distance_matches_bruteforce(periodic):
-    rng = np.random.default_rng(5)
-    for occ in (rng.random((13, 9)) < 0.04, np.zeros((4, 5), bool), np.ones((3, 3), bool)):
-        got = V.empty_space_distance(occ, periodic=periodic, cap=6)
-        X, Z = occ.shape
-        want = np.full(occ.shape, 6)
-        for x, z in np.ndindex(X, Z):
-            for a, b in np.argwhere(occ):
-                dx, dz = abs(a - x), abs(b - z)
-                if periodic:
-                    dx, dz = min(dx, X - dx), min(dz, Z - dz)
-                want[x, z] = min(want[x, z], max(dx, dz))
-        np.testing.assert_array_equal(got, want)
-    # Encoded volumes carry one distance per pointer-map entry, periodic once instanced.
-    vox = _random_voxels(rng, (8, 6, 8), 5)
-    rle = V.encode_rle(vox, levels=2)
-    occ0 = np.asarray(rle.count[:64]).reshape(8, 8) > 0
-    np.testing.assert_array_equal(rle.empty_dist[:64].reshape(8, 8), V.empty_space_distance(occ0))
-    inst = V.place_instances(rle, [[0, 0]], (2, 2))
-    np.testing.assert_array_equal(
-        inst.empty_dist[:64].reshape(8, 8), V.empty_space_distance(occ0, periodic=True)
-    )
-
-
 def test_place_instances_shares_columns():
     rng = np.random.default_rng(2)
     vox = _random_voxels(rng, (4, 10, 6), 60)

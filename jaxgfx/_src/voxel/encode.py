@@ -32,7 +32,6 @@ from jaxgfx._src.voxel.voxset import (
 __all__ = [
     "MIPS",
     "RLEVolume",
-    "empty_space_distance",
     "encode_rle",
     "decode_rle",
     "rle_stats",
@@ -66,11 +65,6 @@ class RLEVolume:
         tiles: (TX, TZ) int32 instance map: the scene is a TX x TZ grid of
             object-sized tiles, each holding the object (0) or nothing (-1).
             A plain volume is one tile.  Instances share every column.
-        empty_dist: (C,) uint8 empty-space distance map (not in the thesis,
-            see :func:`empty_space_distance`): per column, the chessboard
-            distance in its level's cells to the nearest non-empty column of
-            the same level (0 = non-empty), capped at 255; periodic in an
-            instance map.  The ray caster jumps over the empty square it bounds.
         tail_sums: (2, M) uint16, per element of ``elements`` (not in the
             thesis, see :func:`_tail_sums`): the voxels its column tail spans
             down to the element's bottom, and the drawn voxels of the tail
@@ -98,7 +92,6 @@ class RLEVolume:
     elements: Array
     colors: Array
     tiles: Array
-    empty_dist: Array
     tail_sums: Array
     shape: tuple = static_field()
     level_shapes: tuple = static_field()
@@ -117,57 +110,6 @@ class RLEVolume:
         """True where columns may share their stored tails (:func:`share_columns`), so
         ``elements`` holds fewer elements than the columns reach (``column_tails``)."""
         return self.column_tails is not None
-
-
-def empty_space_distance(occupied: np.ndarray, *, periodic: bool = False, cap: int = 255):
-    """Chessboard distance from each map cell to the nearest occupied cell.
-
-    Every cell ``(x', z')`` with ``max(|x' - x|, |z' - z|) < d[x, z]`` is
-    empty, so a ray in cell ``(x, z)`` may jump to the exit of that square.
-
-    Args:
-        occupied: (X, Z) bool, columns holding at least one element.
-        periodic: False: cells outside the grid are empty (one object, the
-            map ends there).  True: the grid repeats (an instance map whose
-            every tile holds this object or nothing, see :func:`place_instances`).
-        cap: largest distance stored (also the result where nothing is occupied).
-
-    Returns:
-        (X, Z) uint8 distances, 0 on occupied cells.
-    """
-    occ = np.asarray(occupied, bool)
-    d = np.full(occ.shape, cap, np.uint8)
-    if not occ.any():
-        return d
-
-    def grow(a, axis):
-        if periodic:
-            return a | np.roll(a, 1, axis) | np.roll(a, -1, axis)
-        g = a.copy()
-        lo = [slice(None)] * 2
-        hi = [slice(None)] * 2
-        lo[axis], hi[axis] = slice(1, None), slice(None, -1)
-        g[tuple(lo)] |= a[tuple(hi)]
-        g[tuple(hi)] |= a[tuple(lo)]
-        return g
-
-    reach = occ.copy()
-    # Each pass grows the reached set by one ring (a separable 3x3 dilation).
-    for r in range(cap):
-        d[reach & (d == cap)] = r
-        if reach.all():
-            break
-        reach = grow(grow(reach, 0), 1)
-    return d
-
-
-def _empty_distances(count, level_shapes, level_offsets, periodic):
-    """The :attr:`RLEVolume.empty_dist` map of every level, (C,) uint8."""
-    out = []
-    for (X, _, Z), o in zip(level_shapes, level_offsets):
-        occ = np.asarray(count[o : o + X * Z]).reshape(X, Z) > 0
-        out.append(empty_space_distance(occ, periodic=periodic).reshape(-1))
-    return np.concatenate(out).astype(np.uint8)
 
 
 def _tail_sums(count, ptr, elements) -> np.ndarray:
@@ -334,7 +276,6 @@ def encode_rle(vox: Voxels, *, levels: int = 1, mips: str = "cube") -> RLEVolume
         elements=elements,
         colors=np.concatenate(cols).astype(np.uint8) if c_base else np.zeros((1, 3), np.uint8),
         tiles=np.zeros((1, 1), np.int32),
-        empty_dist=_empty_distances(count, shapes, offsets, periodic=False),
         tail_sums=_tail_sums(count, ptr, elements),
         shape=shape,
         level_shapes=tuple(shapes),
@@ -395,10 +336,8 @@ def rle_stats(rle: RLEVolume) -> dict:
     levels, divided by the level-0 voxel count.  Colour data = 24-bit RGB per
     stored drawn voxel (all levels) plus our 32-bit colour pointer per column.
     Buffers are counted as stored, so instances sharing columns count once.
-    ``empty_dist_bytes`` is our empty-space distance map (one byte per
-    pointer-map entry, not in the thesis) and ``tail_sums_bytes`` our running
-    sums over the column tails (four bytes per stored element, not in the
-    thesis), both reported apart.
+    ``tail_sums_bytes`` is our running sums over the column tails (four bytes per
+    stored element, not in the thesis), reported apart.
     """
     entries = int(np.asarray(rle.count).shape[0])
     count = np.asarray(rle.count, np.int64)
@@ -423,7 +362,6 @@ def rle_stats(rle: RLEVolume) -> dict:
         bits_per_voxel=position_bits / nvox0,
         bytes_with_color=position_bits // 8 + color_bytes,
         bytes_per_voxel_with_color=(position_bits / 8 + color_bytes) / nvox0,
-        empty_dist_bytes=int(np.asarray(rle.empty_dist).shape[0]),
         tail_sums_bytes=int(np.asarray(rle.tail_sums).nbytes),
     )
 
@@ -468,9 +406,6 @@ def place_instances(rle: RLEVolume, tiles, grid) -> RLEVolume:
     return dataclasses.replace(
         rle,
         tiles=m,
-        # Neighbouring tiles hold the object or nothing: a periodic distance
-        # map is safe across tile borders.
-        empty_dist=_empty_distances(rle.count, rle.level_shapes, rle.level_offsets, True),
         shape=(TX * X, Y, TZ * Z),
         voxel_counts=tuple(int(n) * len(t) for n in rle.voxel_counts),
     )
@@ -531,7 +466,6 @@ def share_columns(rle: RLEVolume) -> RLEVolume:
         first=first,
         count=np.asarray(rle.count),
         tiles=np.asarray(rle.tiles),
-        empty_dist=np.asarray(rle.empty_dist),
         tail_sums=_tail_sums(rle.count, new_ptr, els_all),
         column_tails=int(np.maximum(count - 1, 0).sum()),
     )
