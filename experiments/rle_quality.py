@@ -17,7 +17,8 @@ either hits) for the bunny, the dragon (R = 256) and a 384 x 256 x 384 crop
 of ``untitled.vxl``, at the five near cameras of ``rle_bench`` (512 x 384) and
 three far ones (256 x 192, the distance set so that the object covers about
 600 / 1,500 / 4,000 pixels), with the frame's drawn elements, those its lists
-lost (``overflow``) and its passes over the element pool.  ``--quick``: one
+lost (``overflow``; the wide walk's lists only) and its passes (``table_passes``:
+the scatter's runs of planes drawn in turn through its texel table).  ``--quick``: one
 near and one far camera of the small scene at the quick frame size.
 ``--oversample`` and ``--planes-per-voxel`` check other plane densities than
 the defaults, ``--refine-steps`` the per-pixel re-walk (the acceptance is
@@ -112,7 +113,7 @@ def acceptance(quick, render, small=None):
                 planes=int(out.stats["planes"]),
                 overflow=int(out.stats["buffer_overflow"]),
                 drawn=int(out.stats["elements_rendered"]),
-                pool_passes=int(out.stats["passes"]),
+                table_passes=int(out.stats["passes"]),
                 depth_agree=round(100 * df, 2),
                 color_agree=round(100 * cf, 2),
                 passes="yes" if df >= 0.99 and cf >= 0.98 else "NO",
@@ -194,7 +195,7 @@ def main(argv=None) -> int:
         f"| {r['aa']} | {r['render_ms']} | {r['compile_s']} |\n" for r in rows
     )
     heads = ["scene", "camera", "size", "hit_pixels", "planes", "overflow", "drawn",
-             "pool_passes", "depth_agree", "color_agree", "passes"]  # fmt: skip
+             "table_passes", "depth_agree", "color_agree", "passes"]  # fmt: skip
     text += (
         "\n## Agreement with the per-pixel 3-D DDA at every distance"
         " (% of pixels hit by either)\n\n"

@@ -229,7 +229,7 @@ def test_bad_numbers(tmp_path, capsys, ico):
         (["render-voxels", "s.npz", *cam, "--refine", "-1", "--out", png], "--refine"),
         (["render-voxels", "s.npz", *cam, "--oversample", "0", "--out", png], "--oversample"),
         (["render-voxels", "s.npz", *cam, "--lod", "-1", "--out", png], "--lod"),
-        (["render-voxels", "s.npz", *cam, "--pool-size", "0", "--out", png], "--pool-size"),
+        (["render-voxels", "s.npz", *cam, "--buffer-size", "0", "--out", png], "--buffer-size"),
         (["terrain", "--mesh-level", "7", "--out", png, "--mesh", str(tmp_path / "m.ply")],
          "--mesh-level"),
         (["terrain", "--mesh-level", "1", "--out", png], "--mesh-level"),

@@ -286,10 +286,11 @@ def _num_planes(s: RenderSettings, rle, cam: Camera) -> int:
 def _frame_kernel(s: RenderSettings):
     """:func:`_render_frame` with the shared batching rule (one kernel per settings).
 
-    On XLA:CPU a batch runs frame by frame: the frame's loops stop early and skip idle
-    plane chunks and re-walk batches with ``cond``, which a vectorized batch would run to the
-    longest frame and through every branch; one frame at a time is bit-identical to a loop
-    over the cameras.  Elsewhere the batch is one program (:func:`jaxgfx._src.frames.per_frame`).
+    On XLA:CPU a batch runs frame by frame: the frame's loops stop early (the scatter's
+    windows and passes, the wide walk's plane slots and re-walk batches), which a
+    vectorized batch would run to the longest frame; one frame at a time is bit-identical
+    to a loop over the cameras.  Elsewhere the batch is one program
+    (:func:`jaxgfx._src.frames.per_frame`).
     """
     return per_frame(
         functools.partial(_render_auto, s),
