@@ -627,6 +627,39 @@ WIDE_VECTOR = RC.RenderSettings(traversal="wide", batching="vectorized")
 WIDE_CAMERAS = [CAMERAS[1], CAMERAS[2], CAMERAS[4]]
 
 
+def test_a_map_beyond_the_scatters_limits_takes_the_wide_walk(scene):
+    # The test scene in a grid 4,100 voxels high, past the scatter's 4,096: the default
+    # draws it with the wide walk, with 512 plane slots where lowered for the CPU (the
+    # same frame as asking for them) and every plane in every step for CUDA and TPU,
+    # and agrees with the per-pixel DDA (rays meet the scene within 160 of its cells).
+    from jax import export
+
+    vox, _, occ, col = scene
+    X, Y, Z = vox.shape
+    tall = V.make_voxels(vox.coords, vox.colors, (X, 4100, Z))
+    rle = V.as_jax(V.encode_rle(tall, levels=2))
+    assert "4096 voxels high" in scatter_limits(rle, 1000)
+    occ_t = jnp.zeros((X, 4100, Z), bool).at[:, :Y].set(occ)
+    col_t = jnp.zeros((X, 4100, Z, 3), col.dtype).at[:, :Y].set(col)
+    slots = RC.RenderSettings(traversal="wide", slots=512)
+    for k, (name, cam) in enumerate((CAMERAS[2], CAMERAS[4])):
+        out = render(rle, cam)
+        ref, _ = reference(occ_t, col_t, cam, max_steps=160)
+        d_ok, c_ok, n = _agreement(out, ref)
+        assert n > 800 and d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE, (name, d_ok, c_ok)
+        assert int(out.stats["buffer_overflow"]) == 0, name
+        if k == 0:
+            # The slots' form: the same frame and loop steps (its warp scans one list
+            # entry a step; every plane in every step scans 8: 28 steps here, not 48).
+            asked = render(rle, cam, settings=slots)
+            np.testing.assert_array_equal(np.asarray(asked.depth), np.asarray(out.depth))
+            np.testing.assert_array_equal(np.asarray(asked.color), np.asarray(out.color))
+            steps = int(out.stats["loop_iterations"])
+            assert steps == int(asked.stats["loop_iterations"]), steps
+    fn = jax.jit(lambda c: RC.render_rle(rle, c).depth)
+    assert export.export(fn, platforms=("cuda", "tpu"))(CAMERAS[2][1]).platforms == ("cuda", "tpu")
+
+
 def test_wide_traversal_matches_reference_and_batches_as_one_program(scene):
     # Every plane walks a block of cells per loop step: the agreement with the
     # per-pixel DDA in tens of dependent steps (the thesis's one-cell walk takes

@@ -236,8 +236,8 @@ def _differentiable_depth(cam: Camera, depth):
     return jnp.where(hit, depth + (t_enter - jax.lax.stop_gradient(t_enter)), depth)
 
 
-# Plane slots of the wide traversal on the CPU: 1.3-6x faster there than every
-# plane in every step (experiments.rle_bench, slots_ms beside wide_ms).
+# Plane slots of the wide traversal on the CPU: 4-8x faster there than every plane
+# in every step on rle_bench's scenes (experiments.rle_bench, slots_ms beside wide_ms).
 _CPU_SLOTS = 512
 
 
@@ -323,7 +323,7 @@ def _render_frame(s: RenderSettings, rle, cam: Camera, lod, frames: int = 1) -> 
         image, stats, steps, passes = scatter_frame(
             rle, cam, seg, planes, rows=rows, lod_distance=lod, settings=s, frames=frames
         )
-        # The re-walk in the walk's batches, idle ones skipped (the CPU's form).
+        # No re-walk by default; asked for, it runs in batches, idle ones skipped.
         warped = (*image, jnp.int32(0))
         return _finish_frame(rle, cam, seg, s, stats[None, :], steps, warped, passes, batched=False)
     # The accelerator's form (every plane in every step) warps every busy tile in
