@@ -766,6 +766,80 @@ def test_scatter_traversal_draws_the_per_plane_walks_frames(scene, user_jit):
         assert _same_depth(d1, d2) >= 0.98, (name, _same_depth(d1, d2))
 
 
+def _dda_level_starts(ex, ez, hx, hz, t0, t_far, lod, shape, levels):
+    """Float64 NumPy: where one plane's 2-D DDA enters each mip level (4.5.4.1), cell by cell.
+
+    The thesis's walk: from its first cell, it leaves level ``l`` at the exit of the first
+    cell that it leaves past ``lod 2^l``, into the parent of the cell across that exit.
+    """
+    X, Z = shape
+    t_lev, lev = [t0], 0
+    ix = int(np.clip(np.floor(ex + hx * t0), 0, X - 1))
+    iz = int(np.clip(np.floor(ez + hz * t0), 0, Z - 1))
+    while len(t_lev) < levels:
+        band, c = lod * 2.0**lev, 2.0**lev
+        if band >= t_far:
+            t_lev.append(t_far)
+            lev, ix, iz = lev + 1, ix >> 1, iz >> 1
+            continue
+        nx = ((ix + (hx > 0)) * c - ex) / hx if abs(hx) >= 1e-12 else np.inf
+        nz = ((iz + (hz > 0)) * c - ez) / hz if abs(hz) >= 1e-12 else np.inf
+        t_out = min(nx, nz, t_far)
+        if nx <= nz:
+            ix += 1 if hx > 0 else -1
+        else:
+            iz += 1 if hz > 0 else -1
+        if t_out >= band:
+            lev, ix, iz = lev + 1, ix >> 1, iz >> 1
+            t_lev.append(min(max(t_out, t_lev[-1]), t_far))
+        elif t_out >= t_far:
+            t_lev += [t_far] * (levels - len(t_lev))
+    return t_lev
+
+
+def test_scatter_level_starts_follow_each_planes_dda(scene):
+    # The scatter pairs a cell with a plane only over the plane's stretch at the cell's
+    # mip level; the stretches' starts are computed per plane in closed form.  Against
+    # each plane's DDA walked cell by cell in float64 (bands from 4 voxels on, three
+    # levels): cameras outside the map switch at their first cells' exits, the one
+    # inside at the bands' ends.
+    from jaxgfx._src.voxel.scatter_planes import _plane_tables
+
+    vox = scene[0]
+    rle = V.as_jax(V.encode_rle(vox, levels=3))
+    L, lod = rle.levels, 4.0
+    P = RC.default_num_planes(W, H, 2.0, scene_shape=rle.shape, planes_per_voxel=3.0)
+
+    @jax.jit
+    def tables(cam):
+        seg = RC.screen_segments(
+            cam,
+            RC.vanishing_point(cam),
+            num_planes=P,
+            oversample=2.0,
+            scene_shape=rle.shape,
+            planes_per_voxel=3.0,
+            lod_distance=lod,
+            levels=L,
+        )
+        pl = _plane_tables(rle, cam, seg, jnp.arange(P), rows=W, lod=jnp.float32(lod))
+        return pl.packed, pl.angle
+
+    checked = 0
+    for name, cam in CAMERAS:
+        packed, angle = (np.asarray(a, np.float64) for a in tables(cam))
+        ex, ez = float(cam.position[0]), float(cam.position[2])
+        for row in packed[np.isfinite(angle)]:
+            # Columns: hx, hz, 7 more constants, then t_level (levels + 1, last t_far).
+            t_level = row[9 : 9 + L + 1]
+            want = _dda_level_starts(
+                ex, ez, row[0], row[1], t_level[0], t_level[-1], lod, rle.shape[::2], L
+            )
+            np.testing.assert_allclose(t_level[:L], want, rtol=1e-4, atol=1e-3, err_msg=name)
+            checked += 1
+    assert checked > 1000
+
+
 def test_scatter_traversal_batches_and_lowers_for_accelerators(scene):
     # One vmapped program renders the batch's frames together (their planes and
     # pairs form wider arrays), agreeing with the frames rendered one by one;
