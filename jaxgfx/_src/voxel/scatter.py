@@ -61,8 +61,10 @@ from jaxgfx._src.voxel.scatter_elements import (
     _flat_elements,
     _instance_chunk,
     _object_elements,
+    _pack_runs,
     _slot_runs,
     _tile_levels,
+    _unpack_runs,
     default_chunk,
 )
 from jaxgfx._src.voxel.scatter_planes import _draw_order, _plane_tables, _Planes
@@ -182,8 +184,8 @@ def _pair_rows(rle, cam: Camera, pl: _Planes, el: _Elements, e, k, ok, planes, p
     see the element (outside its level's stretch, its slopes or its rows).
     """
     cell, heights = el.cell[e], el.heights[e]
-    n1 = planes & ((1 << _N_BITS) - 1)
-    ps = jnp.where(k < n1, _first_run(planes) + k, p_lo + k - n1)
+    n1, lo1 = _unpack_runs(planes)
+    ps = jnp.where(k < n1, lo1 + k, p_lo + k - n1)
     ps = jnp.clip(ps, 0, pl.packed.shape[0] - 1)
     row = pl.packed[ps]
     hx, hz, s_min, s_max, hf, p_num, q_num, lo, hi = (row[..., i] for i in range(9))
@@ -298,24 +300,18 @@ class _Passes(NamedTuple):
     steps: jax.Array  # () int32 window steps
 
 
-def _first_run(planes):
-    """The first plane of a packed ``planes`` word's first run (its top 16 bits, unsigned)."""
-    return jax.lax.shift_right_logical(planes, jnp.int32(_N_BITS))
-
-
 def _pass_planes(el: _Elements, p_lo, p_hi):
     """Each element's plane runs cut to the sorted planes ``p_lo .. p_hi - 1``.
 
     Returns ``(n_pairs, planes)`` (N,) int32, ``planes`` as :class:`_Elements`'
     (the second run then starts at ``p_lo``).
     """
-    n1 = el.planes & ((1 << _N_BITS) - 1)
-    lo1 = _first_run(el.planes)
+    n1, lo1 = _unpack_runs(el.planes)
     a1 = jnp.maximum(lo1, p_lo)
     m1 = jnp.maximum(jnp.minimum(lo1 + n1, p_hi) - a1, 0)
     m2 = jnp.maximum(jnp.minimum(el.n_pairs - n1, p_hi) - p_lo, 0)
     n_pairs = jnp.where(el.n_pairs > 0, m1 + m2, 0)
-    return n_pairs, m1 | (jnp.minimum(a1, p_hi) << _N_BITS)
+    return n_pairs, _pack_runs(m1, jnp.minimum(a1, p_hi))
 
 
 def scatter_ray_buffer(

@@ -49,6 +49,16 @@ __all__ = ["default_chunk"]
 _N_BITS = 16
 
 
+def _pack_runs(n1, lo1):
+    """The packed ``planes`` word of a first run of ``n1`` sorted planes from ``lo1``."""
+    return n1 | (lo1 << _N_BITS)
+
+
+def _unpack_runs(planes):
+    """``(n1, lo1)`` of a packed ``planes`` word, ``lo1`` read unsigned (the top bit is its)."""
+    return planes & ((1 << _N_BITS) - 1), jax.lax.shift_right_logical(planes, jnp.int32(_N_BITS))
+
+
 def default_chunk(width: int, height: int) -> int:
     """Element instances an instance map's frame gathers at once: a power of two >= W H.
 
@@ -132,7 +142,7 @@ def _flat_elements(rle, cam: Camera, pl: _Planes) -> _Elements:
     lo1, n1, n2 = _column_planes(rle, cam, pl)
     return el._replace(
         n_pairs=_once(jnp.where(el.n_pairs > 0, n1[col] + n2[col], 0)),
-        planes=_once(n1[col] | (lo1[col] << _N_BITS)),
+        planes=_once(_pack_runs(n1[col], lo1[col])),
     )
 
 
@@ -218,7 +228,7 @@ def _instance_chunk(rle, cam: Camera, pl: _Planes, obj: _Elements, tl: _TileLeve
         n_pairs=_once(jnp.where(live, n1 + n2, 0)),
         cell=_once(ix | (iz << _XZ_BITS) | (lev << (2 * _XZ_BITS))),
         heights=_once(obj.heights[e]),
-        planes=_once(n1 | (lo1 << _N_BITS)),
+        planes=_once(_pack_runs(n1, lo1)),
         color=obj.color[e],
     )
     return el, tile * N + e
