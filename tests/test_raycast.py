@@ -382,7 +382,9 @@ def test_scatter_draws_an_instance_map_over_8192_columns_wide():
     cam = look_at([8520.0, 24.0, -10.0], [8540.0, 0.0, 16.0], fov=50, width=W, height=H, far=1e4)
     out = render(rle, cam, settings=SCATTER)
     occ_m, col_m = (jnp.asarray(a) for a in V.voxels_to_dense(V.decode_rle(inst)))
-    ref, _ = reference(occ_m, col_m, cam)
+    # Every ray leaves the map or meets the ground within about 200 cells: 400 DDA steps
+    # give the default's frame (8,843 steps: ten times the test's time).
+    ref, _ = reference(occ_m, col_m, cam, max_steps=400)
     d_ok, c_ok, hits = _agreement(out, ref)
     assert hits > 0.3 * W * H
     assert d_ok >= DEPTH_AGREE and c_ok >= COLOR_AGREE, (d_ok, c_ok)
@@ -981,20 +983,6 @@ def test_plane_slots_draw_the_same_lists(scene):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert int(np.sum(every[2])) > 1000
     assert int(slots[-1]) > int(every[-1])
-
-
-def test_batched_render_lowers_for_accelerators(scene):
-    # platform_dependent keeps the accelerator's branch (wide traversal, vmapped
-    # frames) in the program: it lowers for CUDA and TPU without a device.
-    from jax import export
-
-    _, rle, _, _ = scene
-    cams = stack_cameras([c for _, c in WIDE_CAMERAS[:2]])
-    fn = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c).depth))
-    exported = export.export(fn, platforms=("cuda", "tpu"))(cams)
-    assert exported.platforms == ("cuda", "tpu")
-    text = exported.mlir_module()
-    assert "while" in text
 
 
 def test_depth_gradient_wrt_camera_matches_finite_differences(scene):
