@@ -54,6 +54,13 @@ def _scene():
 
 
 @pytest.fixture(scope="module")
+def user_render(user_jit):
+    """``render_rle`` at the user's code generation, one jitted function for the module's tests
+    (a program each test would otherwise compile again: about 5 s each at XLA's defaults)."""
+    return user_jit(RC.render_rle)
+
+
+@pytest.fixture(scope="module")
 def scene():
     vox = _scene()
     occ, col = V.voxels_to_dense(vox)
@@ -208,7 +215,9 @@ def test_half_width_pixels_match_reference(scene):
         assert c_ok >= COLOR_AGREE, f"{name}: colour agreement {c_ok:.4f}"
 
 
-def test_vmap_over_cameras_bit_identical_and_no_recompile(scene, compile_counter, user_jit):
+def test_vmap_over_cameras_bit_identical_and_no_recompile(
+    scene, compile_counter, user_jit, user_render
+):
     # vmap renders the views one after another (render_rle's custom_vmap rule),
     # so a batch of 8 is the loop's frames bit for bit, and new cameras of the
     # same size compile nothing, batched or not.
@@ -219,7 +228,7 @@ def test_vmap_over_cameras_bit_identical_and_no_recompile(scene, compile_counter
     ]
     batched_fn = user_jit(jax.vmap(RC.render_rle, in_axes=(None, 0)))
     batched = batched_fn(rle, stack_cameras(cams))
-    one = user_jit(RC.render_rle)
+    one = user_render
     loop = [one(rle, cam) for cam in cams]
     for k, single in enumerate(loop):
         np.testing.assert_array_equal(np.asarray(batched.depth[k]), np.asarray(single.depth))
@@ -712,7 +721,7 @@ def _same_depth(d1, d2):
     return np.mean(np.isclose(d1, d2, rtol=1e-5, atol=0) | (np.isinf(d1) & np.isinf(d2)))
 
 
-def test_scatter_traversal_draws_the_per_plane_walks_frames(scene, user_jit):
+def test_scatter_traversal_draws_the_per_plane_walks_frames(scene, user_render):
     # The first writer of a texel is fixed by the walk's order alone, so
     # projecting every element into the planes that cross its cell and keeping
     # each texel's smallest walk-order key gives the per-plane walk's ray buffer
@@ -722,13 +731,15 @@ def test_scatter_traversal_draws_the_per_plane_walks_frames(scene, user_jit):
     # of planes in turn) and must give the same frame.
     _, rle, occ, col = scene
     small = dataclasses.replace(SCATTER, window=96, texels=8 * W)
-    exact = user_jit(RC.render_rle)
-    # lod_distance passed every time: one program per traversal for both parts.
+    # The default settings draw this map with the scatter (within its limits; the
+    # steps and re-walk checks below fail for the wide traversal), in the vmap test's
+    # program.  lod_distance passed to `render` every time: one program per traversal
+    # for both parts.
     inf = np.float32(np.inf)
     walks, rewalked = {}, []
     for name, cam in CAMERAS:
         # The user's code generation: the windows' frames below are compared bit for bit.
-        out = exact(rle, cam, settings=SCATTER, lod_distance=inf)
+        out = user_render(rle, cam)
         walk = walks[name] = render(rle, cam, settings=WIDE, lod_distance=inf)
         ref, _ = reference(occ, col, cam)
         d_ok, c_ok, n = _agreement(out, ref)
@@ -749,7 +760,7 @@ def test_scatter_traversal_draws_the_per_plane_walks_frames(scene, user_jit):
         # walk's lists keep theirs.
         assert st["refined"] == 0, (name, st)
         rewalked.append(int(walk.stats["refined"]))
-        many = exact(rle, cam, settings=small, lod_distance=inf)
+        many = user_render(rle, cam, settings=small)
         np.testing.assert_array_equal(np.asarray(many.depth), d1)
         np.testing.assert_array_equal(np.asarray(many.color), np.asarray(out.color))
         assert int(many.stats["traversal_steps"]) > 4 * st["traversal_steps"], name
