@@ -228,8 +228,7 @@ def test_vmap_over_cameras_bit_identical_and_no_recompile(
     ]
     batched_fn = user_jit(jax.vmap(RC.render_rle, in_axes=(None, 0)))
     batched = batched_fn(rle, stack_cameras(cams))
-    one = user_render
-    loop = [one(rle, cam) for cam in cams]
+    loop = [user_render(rle, cam) for cam in cams]
     for k, single in enumerate(loop):
         np.testing.assert_array_equal(np.asarray(batched.depth[k]), np.asarray(single.depth))
         np.testing.assert_array_equal(np.asarray(batched.color[k]), np.asarray(single.color))
@@ -238,8 +237,8 @@ def test_vmap_over_cameras_bit_identical_and_no_recompile(
     stacked = stack_cameras(moved)  # (eager ops compile too: outside the count)
     with compile_counter() as counter:
         batched_fn(rle, stacked)
-        one(rle, moved[0])
-        one(rle, moved[4])
+        user_render(rle, moved[0])
+        user_render(rle, moved[4])
     assert counter.count == 0
 
 
@@ -821,7 +820,10 @@ def test_scatter_level_starts_follow_each_planes_dda(scene):
     vox = scene[0]
     rle = V.as_jax(V.encode_rle(vox, levels=3))
     L, lod = rle.levels, 4.0
-    P = RC.default_num_planes(W, H, 2.0, scene_shape=rle.shape, planes_per_voxel=3.0)
+    s = RC.RenderSettings()  # the default plane densities
+    P = RC.default_num_planes(
+        W, H, s.oversample, scene_shape=rle.shape, planes_per_voxel=s.planes_per_voxel
+    )
 
     @jax.jit
     def tables(cam):
@@ -829,9 +831,9 @@ def test_scatter_level_starts_follow_each_planes_dda(scene):
             cam,
             RC.vanishing_point(cam),
             num_planes=P,
-            oversample=2.0,
+            oversample=s.oversample,
             scene_shape=rle.shape,
-            planes_per_voxel=3.0,
+            planes_per_voxel=s.planes_per_voxel,
             lod_distance=lod,
             levels=L,
         )
