@@ -880,9 +880,10 @@ def test_scatter_traversal_batches_and_lowers_for_accelerators(scene):
 def test_scatter_window_fills_an_accelerator(scene):
     # On the CPU a window of pairs is half the frame's pixels, its rows drawn a
     # window at a time; on an accelerator, where every loop step is a launch and
-    # a host sync, four times the pixels, shared by the frames of a vectorized
-    # batch, with four windows of rows a step.  The program lowered for CUDA
-    # carries the accelerator's window (its rows: 4 windows).
+    # a host sync, four times the pixels, with four windows of rows a step, and
+    # each frame of a vectorized batch keeps it up to 2^23 pairs a step for the
+    # batch (so the batch takes its slowest frame's steps).  The program lowered
+    # for CUDA carries the accelerator's window (its rows: 4 windows).
     from jax import export
 
     from jaxgfx._src.voxel.scatter import default_window, rows_per_pair
@@ -890,9 +891,12 @@ def test_scatter_window_fills_an_accelerator(scene):
     assert default_window(512, 384) == 1 << 17
     assert (rows_per_pair(), rows_per_pair(accelerator=True)) == (1, 4)
     assert default_window(512, 384, accelerator=True) == 1 << 20
-    assert default_window(512, 384, accelerator=True, frames=8) == 1 << 17
+    assert default_window(512, 384, accelerator=True, frames=8) == 1 << 20
+    assert default_window(512, 384, accelerator=True, frames=32) == 1 << 18  # 2^23 a batch
     assert default_window(64, 48, accelerator=True, frames=64) == 1 << 14
     assert default_window(3840, 2160, accelerator=True) == 1 << 22  # bounded memory
+    assert default_window(3840, 2160, accelerator=True, frames=4) == 1 << 21
+    assert default_window(8, 8, accelerator=True, frames=4096) == 1 << 14
     with pytest.raises(ValueError, match="frames"):
         default_window(8, 8, frames=0)
     _, rle, _, _ = scene
@@ -902,11 +906,15 @@ def test_scatter_window_fills_an_accelerator(scene):
     for platform, window in (("cuda", True), ("cpu", False)):
         text = export.export(fn, platforms=(platform,))(CAMERAS[2][1]).mlir_module()
         assert (rows in text) == window, platform
-    # A vectorized batch of 4 shares the window: its frames take a quarter each.
-    assert default_window(W, H, accelerator=True, frames=4) < default_window(W, H, accelerator=True)
+    # A vectorized batch of 4 keeps a frame's window: its program's row arrays
+    # are the frame's, batched.
+    lone = default_window(W, H, accelerator=True)
+    assert default_window(W, H, accelerator=True, frames=4) == lone
     batch = jax.jit(jax.vmap(lambda c: RC.render_rle(rle, c, settings=SCATTER)))
     four = stack_cameras([c for _, c in CAMERAS[:4]])
-    assert rows not in export.export(batch, platforms=("cuda",))(four).mlir_module()
+    assert f"tensor<4x{4 * lone}x" in (
+        export.export(batch, platforms=("cuda",))(four).mlir_module()
+    )
 
 
 INSTANCE_CAMERAS = [

@@ -114,15 +114,24 @@ def default_window(width: int, height: int, *, accelerator: bool = False, frames
     On the CPU half a frame's pixels, its rows drawn a window at a time
     (:func:`rows_per_pair`).  On an accelerator a step is a kernel launch or
     more and a host sync, so a window is as wide as the device fills: four times
-    a frame's pixels (2^20 pairs at 512x384, one or two steps for a frame),
-    shared by the ``frames`` of a vectorized batch, and at most 2^22 (a step's
-    row arrays, four windows of int32, stay at 64 MB each: a 4K frame takes a
-    few steps instead).
+    a frame's pixels (2^20 pairs at 512x384, one or two steps for a frame), and
+    at most 2^22 (a step's row arrays, four windows of int32, stay at 64 MB
+    each: a 4K frame takes a few steps instead).  Each of the ``frames`` of a
+    vectorized batch keeps that window while the batch's step holds at most
+    2^23 pairs (row arrays of 128 MB each), so a batch takes the steps of its
+    slowest frame, not one more step per frame; a larger batch shares the
+    2^23.
     """
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames!r}")
-    want = min(4 * width * height // frames, 1 << 22) if accelerator else width * height // 2
-    return 1 << max(14, int(np.ceil(np.log2(max(want, 1)))))
+    if accelerator:
+        want = min(4 * width * height, 1 << 22)
+        # Round the frame's window up, then the batch's share down.
+        window = 1 << int(np.ceil(np.log2(max(want, 1))))
+        while frames * window > 1 << 23 and window > 1 << 14:
+            window //= 2
+        return max(window, 1 << 14)
+    return 1 << max(14, int(np.ceil(np.log2(max(width * height // 2, 1)))))
 
 
 def rows_per_pair(*, accelerator: bool = False) -> int:
