@@ -314,7 +314,10 @@ def screen_to_camera(cam: Camera, sx, sy) -> tuple[jax.Array, jax.Array]:
     ``pixel_aspect`` is honoured in one place.
     """
     fx, fy = focal_lengths(cam)
-    return (sx - 0.5 * cam.width) / fx, (0.5 * cam.height - sy) / fy
+    # One reciprocal, multiplied: XLA rewrites a division by a broadcast value so in
+    # some programs (a vmapped batch of cameras) and not in others, and the rays'
+    # last bits would then depend on the program.
+    return (sx - 0.5 * cam.width) * (1.0 / fx), (0.5 * cam.height - sy) * (1.0 / fy)
 
 
 def project(cam: Camera, points: jax.Array) -> tuple[jax.Array, jax.Array]:
