@@ -375,7 +375,6 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
     sw = _sgn_w(w)
     right, up, forward = camera_basis(cam)
     _, fy = focal_lengths(cam)
-    inv_fy = 1.0 / fy  # multiplied, as in camera.screen_to_camera: the same bits in every program
     pa = cam.pixel_aspect
     cx, cy = 0.5 * cam.width, 0.5 * cam.height
     per = []
@@ -401,7 +400,7 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
         uv = (up[0] * h[0] + up[2] * h[1]) if v is None else up[1]
         fv = (forward[0] * h[0] + forward[2] * h[1]) if v is None else forward[1]
         rv = rv * pa  # / fx = * pixel_aspect / fy
-        return (bx * rv - by * uv) * inv_fy, ((cx0 - cx) * rv + (cy - cy0) * uv) * inv_fy + fv
+        return (bx * rv - by * uv) / fy, ((cx0 - cx) * rv + (cy - cy0) * uv) / fy + fv
 
     lo = jnp.int32(0)
     hi = jnp.minimum(jnp.int32(rows), jnp.ceil(size_a - 0.5).astype(jnp.int32))
