@@ -124,14 +124,12 @@ def default_window(width: int, height: int, *, accelerator: bool = False, frames
     """
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames!r}")
-    if accelerator:
-        want = min(4 * width * height, 1 << 22)
-        # Round the frame's window up, then the batch's share down.
-        window = 1 << int(np.ceil(np.log2(max(want, 1))))
-        while frames * window > 1 << 23 and window > 1 << 14:
-            window //= 2
-        return max(window, 1 << 14)
-    return 1 << max(14, int(np.ceil(np.log2(max(width * height // 2, 1)))))
+    if not accelerator:
+        return 1 << max(14, (width * height // 2 - 1).bit_length())
+    # The frame's window rounded up; the batch's share of 2^23 rounded down.
+    frame = 1 << (min(4 * width * height, 1 << 22) - 1).bit_length()
+    share = 1 << max(0, 23 - (frames - 1).bit_length())
+    return max(min(frame, share), 1 << 14)
 
 
 def rows_per_pair(*, accelerator: bool = False) -> int:
