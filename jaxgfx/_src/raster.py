@@ -384,7 +384,7 @@ def rasterize(
     static = (bool(cull_backfaces), int(block), int(chunk), batching)
     if split is not None and len(split) > 1:
         return _rasterize_split(static, split, cam, vertices, faces, attributes)
-    return _rasterize(static, cam, vertices, faces, attributes)
+    return _compiled_rasterize(static, cam, vertices, faces, attributes)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -418,6 +418,12 @@ def _rasterize_jvp(static, primals, tangents):
 
     _, t_out = jax.jvp(shade, (cam, vertices, attributes), (t_cam, t_vertices, t_attributes))
     return out, t_out
+
+
+# An eager call runs the frame compiled once per shapes and static settings: op by op, the
+# z-buffer's loops would compile again at every call (seconds each) and round apart from
+# the jitted frame.  Under the caller's jit (or vmap, grad) the call is inlined.
+_compiled_rasterize = jax.jit(_rasterize, static_argnums=0)
 
 
 @functools.cache

@@ -480,6 +480,26 @@ def analytic_antialias(
         )
     if faces.shape[0] == 0:
         return color
+    bg = (
+        None
+        if background is None
+        else jnp.broadcast_to(jnp.asarray(background, jnp.float32), (cols,))
+    )
+    return _compiled_antialias(
+        cam, vertices, faces, across, raster_out.tri_id, raster_out.depth, color, bg
+    )
+
+
+@jax.jit
+def _compiled_antialias(cam, vertices, faces, across, tri, depth, color, bg):
+    """:func:`analytic_antialias` of checked arrays, as one compiled program.
+
+    An eager call runs it compiled once per shapes; op by op, its outline walks would
+    compile again at every call (seconds each) and round apart from the jitted pass.
+    Under the caller's ``jit`` (or ``vmap``, ``grad``) the call is inlined.
+    """
+    h, w = cam.height, cam.width
+    cols = color.shape[-1]
     p_cam = world_to_camera(cam, vertices)
     fx, fy = focal_lengths(cam)
     xs, ys = screen_to_camera(
@@ -487,19 +507,13 @@ def analytic_antialias(
     )
     gx, gy = jnp.meshgrid(xs, ys)
     rays = jnp.stack([gx, gy, jnp.ones_like(gx)], axis=-1)  # (H, W, 3), z = 1
-    tri = raster_out.tri_id
     # Depth only orders the pair; the blend's gradient comes from the edge.
-    depth = jax.lax.stop_gradient(raster_out.depth)
+    depth = jax.lax.stop_gradient(depth)
     normals, onward = _edge_planes(p_cam, faces, across)
     # Each pixel's triangle's planes and walk table, gathered once for its four pairs.
     safe_tri = jnp.maximum(tri, 0)
     px_n = normals.reshape(-1, 9)[safe_tri]  # (H, W, 9), with gradients
     px_on = onward[safe_tri]  # (H, W, 3)
-    bg = (
-        None
-        if background is None
-        else jnp.broadcast_to(jnp.asarray(background, jnp.float32), (cols,))
-    )
     zero = jnp.zeros((), rays.dtype)
     # Horizontal pairs (x, x + 1): the next ray is 1 / fx further along camera x; vertical pairs
     # (y, y + 1): 1 / fy further down, i.e. along -y.

@@ -202,11 +202,22 @@ def render_rle(
     # become constants here; device buffers pass through unchanged.
     rle = jax.tree_util.tree_map(jnp.asarray, rle)
     cam = as_float32(cam)
+    return _compiled_frame(s, rle, cam, jnp.asarray(lod_distance, jnp.float32))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _compiled_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
+    """:func:`render_rle` of checked arguments, as one compiled program.
+
+    An eager call runs the frame compiled once per scene layout, camera size and
+    settings; op by op, its loops would compile again at every call (seconds each)
+    and round apart from the jitted frame.  Under the caller's ``jit`` (or ``vmap``,
+    ``grad``) the call is inlined into the caller's program.
+    """
     # The traversal picks voxels (discrete); the depth's derivative w.r.t. the
     # camera is that of the hit voxel's box entry along the pixel's ray.
     fixed = jax.tree_util.tree_map(jax.lax.stop_gradient, cam)
-    lod = jax.lax.stop_gradient(jnp.asarray(lod_distance, jnp.float32))
-    out = _frame_kernel(s)(rle, fixed, lod)
+    out = _frame_kernel(s)(rle, fixed, jax.lax.stop_gradient(lod))
     return out._replace(depth=_differentiable_depth(cam, out.depth))
 
 
