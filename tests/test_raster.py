@@ -327,9 +327,7 @@ def test_shading_in_stripes_equals_whole_frame(monkeypatch):
     whole = raster.rasterize(cam, v, f, v)
     monkeypatch.setattr(raster, "_stripes", lambda h, w: 4)
     # A fresh compiled frame: the module's own has traced (and cached) the whole-frame rule.
-    monkeypatch.setattr(
-        raster, "_compiled_rasterize", jax.jit(raster._rasterize, static_argnums=0)
-    )
+    monkeypatch.setattr(raster, "_compiled_rasterize", jax.jit(raster._rasterize, static_argnums=0))
     parts = raster.rasterize(cam, v, f, v)
     assert np.count_nonzero(np.asarray(whole.tri_id) >= 0) > 200
     np.testing.assert_array_equal(parts.tri_id, whole.tri_id)
