@@ -11,7 +11,8 @@ In ```` ```bash ```` blocks every ``jaxgfx ...`` command must parse with the CLI
 and in a block that runs, every file it reads must exist: in the data folder (the page
 skips when that is absent), in the checkout, or written by an earlier command of the same
 page (the voxelize example writes what the render-voxels example reads).  ``python -m``
-must name a module of the checkout.  The cheap commands (:data:`CHEAP`) are run.
+must name a module of the checkout.  The cheap commands (:data:`CHEAP`) are run.  A
+``jaxgfx`` command quoted inline in the text (the command tables) must parse too.
 
 A block that must not run (``pip install``, the test suite itself) is marked in the
 Markdown by an HTML comment on the line before it, unseen by the reader:
@@ -247,3 +248,20 @@ def test_the_checks_see_a_bad_command_a_missing_file_and_an_unmarked_install():
     ]
     block = page_blocks(ROOT / "README.md")[0]
     assert block.lang == "bash" and block.not_run, "README's install block carries its mark"
+
+
+def test_inline_commands_parse_and_name_data_that_exists():
+    # Commands quoted in the text (the README's and the CLI page's command tables): a
+    # subcommand with arguments parses, and the data files it names are in the data folder.
+    errors = []
+    for page in PAGES:
+        for span in re.findall(r"`(jaxgfx [^`]+)`", page.read_text()):
+            argv = shlex.split(span)[1:]
+            if any("CMD" in w for w in argv) or len(argv) < 2:  # a placeholder, or a bare name
+                continue
+            where = f"{page.relative_to(ROOT)}: `{span}`"
+            errors.append(_parse(argv, where))
+            read, _ = _files(argv)
+            errors += [_check_file(p, [], where) for p in read if p.startswith(SHARED + "/")]
+    errors = [e for e in errors if e]
+    assert not errors, "\n".join(errors)
