@@ -38,6 +38,31 @@ autodoc_typehints = "description"
 autosummary_generate = False
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
+# A "Returns:" type such as ``(H, W) float32`` is a shape, not a class to link: it is shown
+# with the description instead of as an ``:rtype:`` field of cross-references.
+napoleon_use_rtype = False
+
+# Every cross-reference must resolve (``-W`` turns a dangling one into an error).  The targets
+# below belong to other projects, whose inventories this offline build does not load; autodoc
+# writes them from the type hints (``jax.Array`` is rendered by its defining module).
+nitpicky = True
+nitpick_ignore = [
+    ("py:class", name)
+    for name in (
+        "jax.Array",
+        "jax.jaxlib._jax.Array",
+        "jaxlib._jax.Device",
+        "jax._src.mesh.Mesh",
+        "numpy.ndarray",
+        "optax._src.base.GradientTransformation",
+        "collections.abc.Callable",
+        "collections.abc.Mapping",
+        "collections.abc.Sequence",
+        "os.PathLike",
+        "pathlib.Path",
+        "Path",  # an exception's __init__ signature, annotated with pathlib.Path
+    )
+]
 
 html_theme = "alabaster"
 html_title = f"jaxgfx {release}"

@@ -14,8 +14,9 @@ The engine (ch. 2) is in ``jaxgfx.camera`` (one camera for every pass), ``jaxgfx
 ``jaxgfx.post`` (screen-space normals, AO, anti-aliasing), ``jaxgfx.silhouette``
 (differentiable silhouettes: analytic antialiasing), ``jaxgfx.io``, ``jaxgfx.scene``
 (passes joined into one frame) and ``jaxgfx.sweep`` (batched, sharded, resumable sweeps;
-a module: its entry points are :func:`run_sweep` and :func:`load_sweep`).  Implementation
-modules live in the private package ``jaxgfx._src``.
+a module: its entry points are :func:`~jaxgfx.sweep.run_sweep` and
+:func:`~jaxgfx.sweep.load_sweep`).  The implementation modules are private: every public name
+is in one of these modules.
 """
 
 __version__ = "0.1.0"

@@ -6,7 +6,7 @@ Conventions: world right-handed with y up; ``yaw`` about +y (0 looks along +z), 
 ``pitch`` looks up; *depth* is camera-space z; pixel ``(i, j)`` is (column, row) with row 0
 at the top and centres at ``(i + 0.5, j + 0.5)``.  Angles are radians inside
 :class:`Camera`; :func:`look_at`, :func:`orbit_cameras` and :func:`camera_from_degrees`
-take degrees.  Implementation: ``jaxgfx/_src/camera.py``.
+take degrees.
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@
 depth, face ids and perspective-correct barycentrics; batch cameras or posed vertices with
 ``jax.vmap``.  Its visibility is piecewise constant in the vertices; for images with
 gradients at silhouettes use :func:`jaxgfx.silhouette.analytic_antialias`.  The stages
-(near-plane clipping, triangle setup, the tiled z-buffer) live in
-``jaxgfx/_src/zbuffer.py``; the design record is in the docs' design notes.
+(near-plane clipping, triangle setup, the tiled z-buffer) and their measurements are in
+the docs' design notes.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Chapter 4: rendering static objects as run-length encoded surface voxels.
 
-A reader's table of contents: thesis section -> function (implementation in
-``jaxgfx/_src/voxel/``).
+A reader's table of contents: thesis section -> function (with the implementation module
+behind it).
 
 4.3 Input data -- every input becomes a :class:`Voxels` list of coloured surface voxels
     (``voxset``): :func:`make_voxels`, :func:`dense_to_voxels`, :func:`voxels_to_dense`,
@@ -36,10 +36,11 @@ A reader's table of contents: thesis section -> function (implementation in
 4.5.4-4.5.5 Rasterizing and displaying the ray buffer:
     the ray buffer (Eq. 4.5 projection, first writer per texel, floating horizon and
     coverage culling) and the warp to the screen (Eq. 4.6) are stages of
-    :func:`render_rle`, importable from ``jaxgfx._src.voxel.scatter`` (every element
-    scattered into the planes that cross its cell: a few wide steps a frame),
-    ``jaxgfx._src.voxel.wide`` (each plane's 2-D DDA in blocks of cells: tens of steps a
-    frame) and ``jaxgfx._src.voxel.warp``.
+    :func:`render_rle`, in one of two traversals (:class:`RenderSettings` ``traversal``):
+    the scatter (every element scattered into the planes that cross its cell: a few wide
+    steps a frame; :func:`scatter_limits` says which maps it takes) and the wide walk
+    (each plane's 2-D DDA in blocks of cells: tens of steps a frame) (``scatter``,
+    ``wide``, ``warp``).
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
     :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
@@ -92,6 +93,7 @@ from jaxgfx._src.voxel.render import check_camera_outside as check_camera_outsid
 from jaxgfx._src.voxel.render import default_num_planes as default_num_planes
 from jaxgfx._src.voxel.render import lod_distance_for as lod_distance_for
 from jaxgfx._src.voxel.render import render_rle as render_rle
+from jaxgfx._src.voxel.scatter import scatter_limits as scatter_limits
 from jaxgfx._src.voxel.settings import RenderSettings as RenderSettings
 from jaxgfx._src.voxel.tree import procedural_tree as procedural_tree
 from jaxgfx._src.voxel.volume import isotropic_shape as isotropic_shape
@@ -153,6 +155,7 @@ __all__ = [
     "RenderSettings",
     "RenderOutput",
     "render_rle",
+    "scatter_limits",
     "lod_distance_for",
     "default_num_planes",
     "check_camera_outside",

@@ -1,7 +1,7 @@
 """Chapter 5: spline skinning, deformation styles and their baselines (the chapter's face).
 
-Every function is written for one item (one spline, one vertex) and batched with :func:`jax.vmap`
-by the caller.  Where each thesis section lives (modules under ``jaxgfx/_src/skin/``):
+Every function is written for one item (one spline, one vertex) and batched with ``jax.vmap``
+by the caller.  Where each thesis section lives (with the implementation module behind it):
 
 * 5.4 Splines, the rig and its hierarchy (Fig. 5.16) -- ``rig``: :class:`SplineRig`,
   :class:`SplinePose`, :func:`make_rig`, :func:`validate_pose`, :func:`forward_kinematics`.

@@ -7,7 +7,7 @@ welded, smoothed meshes and follow the viewer with differential updates; a geome
 thread rebuilds them while the renderer draws.  World coordinates stay integers, so
 the terrain is the same, exactly, at x = 0 and at x = 10^9 (3.5.3).
 
-Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
+Thesis section -> where it lives (with the implementation module behind it):
 
 3.4.3 Procedural volume-data creation (Eq. 3.1-3.2), ``functions.py``:
     :class:`XorTerrain`, :class:`SawTerrain`, :class:`SinTerrain` (:func:`int_sin`),

@@ -72,6 +72,7 @@ os.environ.setdefault("JAXGFX_CACHE_DIR", tempfile.mkdtemp(prefix="jaxgfx-test-c
 # leave the other worker idle at the end of the run.  xdist's own order (by test count) is off
 # (``--no-loadscope-reorder`` in pyproject.toml), so this one holds.
 SLOW_FIRST = (
+    "test_examples.py",
     "test_experiments.py",
     "test_raycast.py",
     "test_sweep.py",

@@ -116,6 +116,20 @@ def test_every_top_level_name_links_to_its_documentation(inventory):
     assert not missing, f"jaxgfx.__all__ names without API documentation: {missing}"
 
 
+def test_api_pages_never_point_into_the_private_package(site):
+    # The reference documents public names only: a docstring that links or names a module of
+    # jaxgfx._src (or its files), or a type shown by its defining private name, sends the
+    # reader to something they cannot rely on.  The build is nitpicky, so every link resolves;
+    # this checks what the links and the text say.
+    private = re.compile(r"jaxgfx[./]_src\b[\w./]*")
+    hits = {
+        page.name: sorted(set(private.findall(page.read_text())))
+        for page in sorted((site / "api").glob("*.html"))
+    }
+    hits = {page: found for page, found in hits.items() if found}
+    assert not hits, f"API pages point into jaxgfx._src: {hits}"
+
+
 def test_pages_and_cli_help_are_built(site):
     for page in ("index", "getting_started", "cli", "engine", "terrain", "raycast", "skin"):
         assert (site / f"{page}.html").exists(), page

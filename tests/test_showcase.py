@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxgfx.cli import main
-from jaxgfx.showcase import build_demo, find_data
+from jaxgfx.showcase import build_demo, data_source, find_data
 
 GROUND_TOL = 1.0
 """World units (level-0 terrain voxels): no bottom voxel or vertex of an object may float
@@ -67,6 +67,31 @@ def test_find_data_rejects_a_file(tmp_path):
         find_data(f)
 
 
+def test_find_data_takes_the_flag_then_the_variable_then_shared_data_beside_the_cwd(
+    tmp_path, monkeypatch
+):
+    # tmp/checkout is the working directory; tmp/shared/data is the folder beside it.
+    checkout, shared = tmp_path / "checkout", tmp_path / "shared" / "data"
+    flag, env = tmp_path / "flag", tmp_path / "env"
+    for d in (checkout, shared, flag, env):
+        d.mkdir(parents=True)
+    monkeypatch.chdir(checkout)
+    monkeypatch.setenv("JAXGFX_DATA", str(env))
+    assert data_source(flag) == (flag, f"data: {flag} (from --data)")
+    assert data_source() == (env, f"data: {env} (from $JAXGFX_DATA)")
+    monkeypatch.setenv("JAXGFX_DATA", "")  # set but empty: as if unset
+    found, source = data_source()
+    assert found == shared.resolve() and "../shared/data from the current directory" in source
+    assert find_data() == shared.resolve()
+    monkeypatch.setenv("JAXGFX_DATA", str(tmp_path / "missing"))
+    with pytest.raises(ValueError, match=r"\$JAXGFX_DATA"):
+        find_data()  # a variable that names nothing is an error, not a silent fallback
+    monkeypatch.delenv("JAXGFX_DATA")
+    monkeypatch.chdir(shared)  # ../shared/data from here does not exist
+    found, source = data_source()
+    assert found is None and find_data() is None and "procedural" in source
+
+
 def test_demo_cli_writes_images_gif_and_pass_shares(tmp_path, capsys, monkeypatch):
     # The demo command's procedural scene (64x48, seed 0, an empty data folder); the scene
     # it built is checked too: its objects stand on the procedural ground.
@@ -103,3 +128,7 @@ def test_demo_cli_writes_images_gif_and_pass_shares(tmp_path, capsys, monkeypatc
     printed = capsys.readouterr().out
     for credit in timing["credits"]:
         assert printed.count(credit) == 1  # each credit once
+    # Which data folder the scene came from, in the output and the timing table.
+    source = f"data: {empty} (from --data)"
+    assert timing["data"] == source and source in printed
+    assert source in (out / "timing.md").read_text()

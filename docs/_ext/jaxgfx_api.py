@@ -15,7 +15,8 @@ Two directives, both driven by ``__all__`` so that the pages follow the code:
     exports are documented on the page that uses this directive.
 
 Also :func:`skip_fields`: a class's data fields are left to its docstring's ``Attributes:``
-section and its signature.
+section and its signature; and :class:`PublicTargets`: a cross-reference to a class by its
+defining (private) name is pointed at its public name.
 """
 
 from __future__ import annotations
@@ -25,8 +26,11 @@ import inspect
 import sys
 from typing import Any
 
+from docutils import nodes
+from sphinx import addnodes
 from sphinx.application import Sphinx
 from sphinx.pycode import ModuleAnalyzer
+from sphinx.transforms.post_transforms import SphinxPostTransform
 from sphinx.util.docutils import SphinxDirective
 
 # The modules with an API page, in the order of the reference.
@@ -109,17 +113,22 @@ class PublicNames(SphinxDirective):
                 groups.setdefault(home, []).append(f"{home}.{name}")
             else:
                 here.append(name)
-        # Full names in the tables: autosummary refuses names under the current module.
-        lines: list[str] = [".. currentmodule:: None", ""]
+        # Each table under its home module: the summaries' short cross-references (a
+        # docstring's :class:`Camera`) resolve there, as on the home page itself.
+        lines: list[str] = []
         for home, names in groups.items():
+            lines += [f".. currentmodule:: {home}", ""]
             lines += [f"From :mod:`{home}`:", "", ".. autosummary::", "   :nosignatures:", ""]
-            lines += [f"   ~{full}" for full in names] + [""]
+            lines += [f"   {full.rsplit('.', 1)[1]}" for full in names] + [""]
+        lines += [f".. currentmodule:: {package.__name__}", ""]
         if here:
             lines += ["Defined in the implementation package and documented here:", ""]
             for name in here:
                 obj = getattr(package, name)
                 kind = "class" if inspect.isclass(obj) else "function" if callable(obj) else "data"
                 lines += [f".. auto{kind}:: {package.__name__}.{name}", ""]
+        # Full module names: autosummary refuses names under the current module.
+        lines += [".. currentmodule:: None", ""]
         lines += ["The public modules, one page each:", "", ".. autosummary::", ""]
         lines += [f"   {m}" for m in modules] + [""]
         return self.parse_text_to_nodes("\n".join(lines))
@@ -139,8 +148,35 @@ def skip_fields(app, what, name, obj, skip, options):
     return None
 
 
+class PublicTargets(SphinxPostTransform):
+    """Points a cross-reference to a class's defining name at the class's public name.
+
+    A type hint names a class where it is defined (``jaxgfx._src.camera.Camera``).  Autodoc
+    records that name as an alias (``:canonical:``) of the documented public one
+    (``jaxgfx.camera.Camera``), so the link resolves, but the link's tooltip (and the text
+    of an attribute's ``Type:`` field) would show the private name.  Runs before the
+    references are resolved.
+    """
+
+    default_priority = 5  # sphinx's ReferencesResolver runs at 10
+
+    def run(self, **kwargs: Any) -> None:
+        objects = self.env.get_domain("py").objects  # type: ignore[attr-defined]
+        for node in self.document.findall(addnodes.pending_xref):
+            target = node.get("reftarget", "")
+            if node.get("refdomain") != "py" or not target.startswith("jaxgfx._src."):
+                continue
+            entry = objects.get(target)
+            if entry is not None and entry.aliased:
+                node["reftarget"] = entry.node_id
+                for text in list(node.findall(nodes.Text)):
+                    if str(text) == target:
+                        text.parent.replace(text, nodes.Text(entry.node_id))
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("module-constants", ModuleConstants)
     app.add_directive("public-names", PublicNames)
+    app.add_post_transform(PublicTargets)
     app.connect("autodoc-skip-member", skip_fields)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -61,7 +61,7 @@ def up_rotation(up: str = "y") -> np.ndarray:
     ``v @ R.T`` (and to normals the same way).
 
     Raises:
-        ValueError: ``up`` is not one of :data:`UP_AXES`.
+        ValueError: ``up`` is not one of ``"x"``, ``"y"``, ``"z"``.
     """
     if up not in UP_AXES:
         raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")

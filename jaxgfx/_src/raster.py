@@ -340,11 +340,12 @@ def rasterize(
         devices: split this ONE frame's faces over several devices (static): an int D
             (the first D of ``jax.devices()``) or a sequence of devices; ``None`` or 1: one
             device.  On a CPU with one host device per core this draws a frame on every
-            core; the result is bit-identical to one device (see
-            :mod:`jaxgfx._src.zsplit`).  An explicit choice, because it makes the call an
-            SPMD program over those devices.  Under ``jax.vmap`` the z-buffer split is
-            dropped (a batch is split by its own sharding, never twice); the shading still
-            gives each device its rows of every frame.
+            core; the result is bit-identical to one device (each device z-buffers every
+            D-th face over the whole frame, and the buffers merge by the z-buffer's own
+            rule: nearest depth, then lowest face index).  An explicit choice, because it
+            makes the call an SPMD program over those devices.  Under ``jax.vmap`` the
+            z-buffer split is dropped (a batch is split by its own sharding, never twice);
+            the shading still gives each device its rows of every frame.
         batching: the ``vmap`` rule (static): ``"auto"`` (frame by frame on CPU,
             vectorized elsewhere), ``"frames"`` or ``"vectorized"``.
 
@@ -365,8 +366,9 @@ def rasterize(
         the depth falls back to the z-buffer's and its gradient is zero.
 
     Raises:
-        ValueError / TypeError: bad shapes, dtypes or static arguments (also inside
-            ``jit``), bad values of concrete inputs.
+        ValueError: bad shapes or static arguments (also inside ``jit``), bad values of
+            concrete inputs.
+        TypeError: bad dtypes or types of static arguments.
     """
     check_int("block", block, low=1)
     check_int("chunk", chunk, low=1)

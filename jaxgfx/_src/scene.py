@@ -85,7 +85,7 @@ def render_mesh_pass(
     ambient: float = 0.3,
     cull_backfaces: bool = False,
 ) -> Frame:
-    """Rasterizes and Lambert-shades one mesh pass -> :class:`Frame`."""
+    """Rasterizes and Lambert-shades one mesh pass -> :class:`~jaxgfx.compose.Frame`."""
     attrs = jnp.concatenate([mesh.colors, mesh.normals], axis=-1)
     out = rasterize(cam, mesh.vertices, mesh.faces, attrs, cull_backfaces=cull_backfaces)
     color = lambert(out.color[..., 3:], out.color[..., :3], light_dir, ambient)

@@ -47,6 +47,7 @@ from jaxgfx._src.voxel.tree import procedural_tree
 from jaxgfx._src.voxel.voxset import Voxels, downsample_voxels, make_voxels
 
 __all__ = [
+    "data_source",
     "find_data",
     "Placement",
     "column_top",
@@ -74,22 +75,40 @@ DEM_CREDIT = "St Helens DEM: USGS, via VTK sample data"
 KV6_CREDIT = "kv6 sprites: Ken Silverman's Voxlap sample data"
 
 
-def find_data(data: str | os.PathLike | None = None) -> Path | None:
-    """The real-data folder: ``data`` if given, else ``$JAXGFX_DATA`` if set; else None.
+def data_source(data: str | os.PathLike | None = None) -> tuple[Path | None, str]:
+    """The demo's real-data folder (None: the procedural scene) and a line naming its source.
 
-    Never guessed from the working directory: without either, the demo is procedural.
+    The rule is :func:`find_data`'s; ``jaxgfx demo`` prints the line and writes it to its
+    ``timing.md``.
 
     Raises:
         ValueError: ``data`` (or ``$JAXGFX_DATA``) is set but is not a directory.
     """
-    source = "data" if data is not None else "$JAXGFX_DATA"
-    value = data if data is not None else os.environ.get("JAXGFX_DATA") or None
-    if value is None:
-        return None
-    p = Path(value).expanduser()
-    if not p.is_dir():
-        raise ValueError(f"{source}: {str(p)!r} is not a directory")
-    return p
+    for name, value in (("data", data), ("$JAXGFX_DATA", os.environ.get("JAXGFX_DATA") or None)):
+        if value is not None:
+            p = Path(value).expanduser()
+            if not p.is_dir():
+                raise ValueError(f"{name}: {str(p)!r} is not a directory")
+            return p, f"data: {p} (from {'--data' if name == 'data' else name})"
+    # Beside the checkout, for commands run from its root (the README's layout).
+    if (shared := Path("..", "shared", "data").resolve()).is_dir():
+        return shared, f"data: {shared} (../shared/data from the current directory)"
+    return None, "data: none (no --data, $JAXGFX_DATA or ../shared/data): the procedural scene"
+
+
+def find_data(data: str | os.PathLike | None = None) -> Path | None:
+    """The demo's real-data folder, or None for the procedural scene.
+
+    In order: ``data`` if given (``jaxgfx demo --data DIR``); else ``$JAXGFX_DATA`` if
+    set; else ``../shared/data`` relative to the current directory if it exists; else
+    None.  A folder without one of the demo's files leaves that part procedural: without
+    ``terrain/SainteHelens.dem`` the terrain, without ``voxlap/barrel.kv6`` and
+    ``caco.kv6`` no sprites, without ``rigs/fox.glb`` the demo arm for the fox.
+
+    Raises:
+        ValueError: ``data`` (or ``$JAXGFX_DATA``) is set but is not a directory.
+    """
+    return data_source(data)[0]
 
 
 # --------------------------------------------------------------------------------------

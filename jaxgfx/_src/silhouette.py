@@ -111,8 +111,9 @@ def silhouette_edges(faces, vertices=None) -> np.ndarray:
         side).
 
     Raises:
-        TypeError / ValueError: if ``faces`` is not a concrete (F, 3) integer array, or
-        ``vertices`` is not a concrete (V, 3) array indexed by it.
+        TypeError: ``faces`` or ``vertices`` is traced, or ``faces`` is not integer.
+        ValueError: ``faces`` is not (F, 3), or ``vertices`` is not a (V, 3) array that
+            ``faces`` indexes.
     """
     if isinstance(faces, jax.core.Tracer) or isinstance(vertices, jax.core.Tracer):
         raise TypeError(
@@ -448,7 +449,8 @@ def analytic_antialias(
         (H, W, C) antialiased image; pixels away from silhouettes are unchanged.
 
     Raises:
-        ValueError / TypeError: for bad concrete inputs (checked before tracing).
+        ValueError: bad shapes or values of concrete inputs (checked before tracing).
+        TypeError: bad dtypes or types of concrete inputs (checked before tracing).
 
     References:
         S. Laine, J. Hellsten, T. Karras, Y. Seol, J. Lehtinen, T. Aila,

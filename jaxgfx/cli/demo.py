@@ -32,8 +32,8 @@ def register(subparsers) -> None:
     d.add_argument(
         "--data",
         default=None,
-        help="shared data folder with terrain/, voxlap/, rigs/ (default: $JAXGFX_DATA; "
-        "without either the scene is procedural)",
+        help="shared data folder with terrain/, voxlap/, rigs/ (default: $JAXGFX_DATA, else "
+        "../shared/data from the current directory if it exists, else the procedural scene)",
     )
     d.add_argument(
         "--frames",
@@ -52,10 +52,10 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--frames must be at most {MAX_FRAMES}, got {args.frames}")
     w, h = args.size
     check_memory("--frames", str(args.frames), float(args.frames) * w * h * 3)
-    from jaxgfx.showcase import find_data
+    from jaxgfx.showcase import data_source
 
     try:
-        data = find_data(args.data)
+        data, source = data_source(args.data)
     except ValueError as err:
         raise CliError(f"--data: {err}") from None
     import imageio.v3 as iio
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         r["ms"] = f"{r['ms']:.1f}"
     mach = machine()
     md = (
-        f"# jaxgfx demo {w}x{h}\n\n{demo.description}\n\n"
+        f"# jaxgfx demo {w}x{h}\n\n{source}\n\n{demo.description}\n\n"
         + "".join(f"{c}.\n" for c in demo.credits)
         + f"\nmachine: {mach}\n\n"
         "compile_s: first call (trace + compile + run); ms: median of 3 later calls\n\n"
@@ -124,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
             out / "timing.json",
             dict(
                 size=[w, h],
+                data=source,
                 scene=demo.description,
                 credits=list(demo.credits),
                 machine=mach,

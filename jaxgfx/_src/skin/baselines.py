@@ -121,11 +121,11 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
     """LBS of a mesh; returns positions (V, 3) and unit normals (V, 3).
 
     Equals :func:`lbs_vertex` vmapped over the vertices (to float32 rounding) but runs the
-    structure-of-arrays kernel of :mod:`jaxgfx._src.skin.kernels`.  Work follows the data:
+    structure-of-arrays kernel that XLA:CPU fuses over the vertices.  Work follows the data:
     with the per-vertex arrays (``vertices``, ``normals``, ``joints``, ``weights``) sharded
     along V over a mesh, each device skins its own vertices; under ``jax.vmap`` over poses a
     batch sharded over a mesh is split the same way, and on a CPU each device runs its poses
-    in chunks of :data:`POSE_CHUNK` (the chunk's outputs stay in cache).
+    in small chunks (the chunk's outputs stay in cache).
 
     Args:
         transforms: (J, 3, 4) (or (J, 4, 4)) bone matrices, bind space to posed.

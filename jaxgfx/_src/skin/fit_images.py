@@ -224,7 +224,7 @@ def style_image_loss(
     """Mean :func:`image_loss` over the P x C images, plus ``smoothness`` times the penalty.
 
     Args:
-        params: log-parameters (:func:`~jaxgfx._src.skin.fit.style_to_params`).
+        params: log-parameters (:func:`~jaxgfx.skin.style_to_params`).
         skin_fn: ``skin_fn(style, pose) -> (V, 3)``.
         poses: P stacked poses.
         faces: (F, 3) int32; edges: (F, 3) int32 :func:`jaxgfx.silhouette.silhouette_edges`.
@@ -232,7 +232,7 @@ def style_image_loss(
         targets: :class:`ImageTargets` (P, C, H, W).
         hollow: () hollow offset of the style (not fitted).
         silhouette_weight, depth_weight: weights of the two terms.
-        smoothness: weight of :func:`~jaxgfx._src.skin.fit.smoothness_penalty`.
+        smoothness: weight of :func:`~jaxgfx.skin.smoothness_penalty`.
 
     Returns:
         Total loss and the data term (the image loss alone).
@@ -336,7 +336,7 @@ def fit_style_images(
 ) -> FitResult:
     """Fit a style's textures and curves to depth and silhouette images (never to vertices).
 
-    A driver like :func:`~jaxgfx._src.skin.fit.fit_style`: it validates its inputs on the host,
+    A driver like :func:`~jaxgfx.skin.fit_style`: it validates its inputs on the host,
     jit-compiles one optimization step (skinning, rasterization and antialiasing of all P x C
     images, batched with ``vmap``, and their gradient) and runs it ``steps`` times.
 
@@ -370,10 +370,12 @@ def fit_style_images(
             ``silhouette_edges(faces, skin_fn(init_style, poses[0]))`` (split vertices welded).
 
     Returns:
-        :class:`~jaxgfx._src.skin.fit.FitResult`; ``data_history`` is the image loss alone.
+        :class:`~jaxgfx.skin.FitResult`; ``data_history`` is the image loss alone.
 
     Raises:
-        TypeError / ValueError: naming the bad argument, before anything is traced.
+        TypeError: an argument of the wrong type, named, before anything is traced.
+        ValueError: an argument of the wrong shape or value, named, before anything is
+            traced.
     """
     _check_image_inputs(skin_fn, poses, faces, cameras, targets, init_style)
     steps = check_int("steps", steps, low=0)

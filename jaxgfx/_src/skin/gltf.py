@@ -323,6 +323,6 @@ def joint_globals(skin: GltfSkin, local_trs: np.ndarray) -> np.ndarray:
 
 
 def joint_matrices(skin: GltfSkin, local_trs: np.ndarray) -> np.ndarray:
-    """Skinning matrices ``G(joint) IBM`` (J, 3, 4) float32 for :func:`skin.lbs_vertex`."""
+    """Skinning matrices ``G(joint) IBM`` (J, 3, 4) float32 for :func:`~jaxgfx.skin.lbs_vertex`."""
     m = joint_globals(skin, local_trs) @ skin.inverse_bind
     return m[:, :3, :].astype(np.float32)

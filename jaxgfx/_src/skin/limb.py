@@ -86,7 +86,7 @@ def demo_arm_pose(rig: SplineRig, bend: float | jax.Array, twist: float | jax.Ar
     """Pose of the demo arm: bend ``bend`` radians about ``-x`` at the elbow, twist ``twist``.
 
     Args:
-        rig: :attr:`DemoArm.rig`.
+        rig: the arm's rig (``demo_arm().rig``).
         bend: () elbow bend in radians (a Python float or a traced scalar).
         twist: () twist ``γ`` in radians.
 

@@ -294,7 +294,7 @@ def skin_sampled_tables(
         Positions (V, 3) and unit normals (V, 3).  With styles, the blend plus
         :func:`style_offset_sampled`'s offsets; the normal is the raw blended normal plus the
         normal offset, normalized once (Eq. 5.13, as ``skin_exact``), both computed in the
-        blend loops (:func:`~jaxgfx._src.skin.kernels.blend_skin_styled`).
+        blend loops of the mesh kernel.
     """
     radial, rect = _check_pass2(binding, style, styles)
     samples = check_int("samples", samples, low=2)

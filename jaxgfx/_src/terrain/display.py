@@ -190,7 +190,7 @@ def weld_mesh(vertices, normals, faces, *, separation: float = 1e-3, pairing=Non
 
     Vertices at the same position (the welded seams, 3.4.5) are merged, degenerate
     and repeated triangles dropped.  Where voxels touch only along an edge, four
-    faces share it; they are paired around the edge (:func:`_radial_pairs`), every
+    faces share it; they are paired around the edge by their angle about it, every
     vertex is split into its fans of faces joined across edges, and the copies of
     a split vertex move ``separation`` of the way towards their own faces, so no
     two vertices coincide.  The only open edges left are the outer box's rim.

@@ -353,7 +353,7 @@ def voxels_to_mesh(
     words; vertex ids are ranks in the used-corner set.  Cost: O(N^3 / 32) word work
     plus O(max_quads) per-quad work (so a capacity near the real quad count pays).
     The packed occupancy, the face words and the used-corner words are each computed
-    once (:func:`_keep`): left to fusion, XLA:CPU recomputed the 32-plane packing
+    once and kept: left to fusion, XLA:CPU recomputed the 32-plane packing
     inside every gather that reads them.
 
     Args:

@@ -66,7 +66,7 @@ class RLEVolume:
             object-sized tiles, each holding the object (0) or nothing (-1).
             A plain volume is one tile.  Instances share every column.
         tail_sums: (2, M) uint16, per element of ``elements`` (not in the
-            thesis, see :func:`_tail_sums`): the voxels its column tail spans
+            thesis): the voxels its column tail spans
             down to the element's bottom, and the drawn voxels of the tail
             before it.  The ray caster reads a column's elements directly
             instead of decoding every element above them.
@@ -221,7 +221,7 @@ def encode_rle(vox: Voxels, *, levels: int = 1, mips: str = "cube") -> RLEVolume
     Args:
         vox: coloured voxels (normally only the surface, see :func:`surface_voxels`); a
             3-D occupancy array is taken as its surface voxels in the clay colour
-            (:func:`~jaxgfx._src.voxel.voxset.as_voxels`).
+            (:func:`~jaxgfx.raycast.dense_to_voxels`).
         levels: number of levels; level ``l`` is ``l`` times 2x down-sampled.
         mips: ``"cube"``: 2x2x2 down-sampling, as the thesis (4.4.7); a coarse cell is
             ``2^l`` voxels high, so where two LOD bands meet, a surface can step up by up to

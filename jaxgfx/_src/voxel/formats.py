@@ -137,7 +137,8 @@ def load_volume(path: str) -> tuple[np.ndarray, np.ndarray]:
 
     Built in: MetaImage (``.mhd``) and NRRD (``.nhdr``/``.nrrd``) headers with raw
     data, and VTK legacy ``STRUCTURED_POINTS`` (``.vtk``).  Through SimpleITK (the
-    optional extra ``jaxgfx[volumes]``): :data:`SIMPLEITK_SUFFIXES`, and ``.mhd`` /
+    optional extra ``jaxgfx[volumes]``): ``.mha``, ``.nii``, ``.nii.gz``, ``.hdr``, ``.img``,
+    ``.gipl`` and ``.gipl.gz``, and ``.mhd`` /
     NRRD files whose data is compressed or inside the header.
 
     Args:
@@ -219,7 +220,7 @@ def volume_to_voxels(
     """Thresholds a scanned volume at an iso value and keeps its surface (4.3.2).
 
     With ``spacing`` (or ``resolution``) the volume is first resampled to cubic
-    voxels (:func:`~jaxgfx._src.voxel.volume.resample_isotropic`: trilinear, the voxel
+    voxels (:func:`~jaxgfx.raycast.resample_isotropic`: trilinear, the voxel
     edge is the finest spacing, or the longest physical axis split into
     ``resolution`` voxels), so a scan keeps its proportions.  Voxels with
     ``value >= iso`` are solid.  The colour is a gradient over the value above the
@@ -229,12 +230,11 @@ def volume_to_voxels(
     Args:
         volume: (X, Y, Z) scalar volume.
         iso: threshold, strictly inside the data range; None: Otsu's threshold of
-            the volume's values (:func:`~jaxgfx._src.voxel.volume.otsu_threshold`,
+            the volume's values (:func:`~jaxgfx.raycast.otsu_threshold`,
             the boundary between air and the scanned object).
         up_axis: which volume axis becomes world +y: 0, 1, 2 (x, y, z) or one of
             ``'x'``, ``'y'``, ``'z'``, ``'-x'``, ``'-y'``, ``'-z'``; the volume is
-            rotated (not mirrored), e.g. z up maps ``(x, y, z)`` to ``(x, z, -y)``
-            (:func:`~jaxgfx._src.voxel.volume.turn_up`).
+            rotated (not mirrored), e.g. z up maps ``(x, y, z)`` to ``(x, z, -y)``.
         spacing: optional (3,) sample spacing per volume axis (before ``up_axis``).
         resolution: optional voxel count of the longest physical axis.
 
@@ -389,9 +389,9 @@ def save_scene(path: str, vox: Voxels) -> None:
 
     Args:
         path: the ``.npz`` file.
-        vox: :class:`Voxels`; an :class:`~jaxgfx._src.voxel.encode.RLEVolume` is saved as
-            its level 0 (:func:`~jaxgfx._src.voxel.encode.decode_rle`), a 3-D occupancy
-            array as its surface voxels (:func:`~jaxgfx._src.voxel.voxset.as_voxels`).
+        vox: :class:`Voxels`; an :class:`~jaxgfx.raycast.RLEVolume` is saved as
+            its level 0 (:func:`~jaxgfx.raycast.decode_rle`), a 3-D occupancy
+            array as its surface voxels (:func:`~jaxgfx.raycast.dense_to_voxels`).
     """
     from jaxgfx._src.io import atomic_write
     from jaxgfx._src.voxel.encode import RLEVolume, decode_rle

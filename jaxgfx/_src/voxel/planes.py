@@ -179,7 +179,7 @@ def screen_segments(
     counts are scaled down.
 
     With ``scene_shape`` (not in the thesis) the planes cover only the screen
-    rectangle of the scene box (:func:`scene_rect`), and with
+    rectangle of the scene box's projection, and with
     ``planes_per_voxel = k > 0`` they are spaced at most ``1 / k`` voxels apart
     at the box's farthest depth, so that a column narrower than a pixel is still
     crossed by a plane: the density follows the distance, up to the budget

@@ -138,9 +138,9 @@ def render_rle(
     them as one wider frame, a batch taking about its slowest frame's dependent
     loop steps.  The default ``traversal`` scatters the map's elements (an
     instance map's: each tile's, at the tile's mip level) into the planes
-    (:mod:`.scatter`, every platform); a map beyond its limits
-    (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`) takes the wide traversal
-    (:mod:`.wide`: a block of cells per plane per loop step), on the CPU with
+    (every platform); a map beyond its limits
+    (:func:`~jaxgfx.raycast.scatter_limits`) takes the wide traversal
+    (a block of cells per plane per loop step), on the CPU with
     plane slots (``RenderSettings.slots``).
 
     The depth is differentiable w.r.t. the camera: the traversal's choices are
@@ -159,9 +159,9 @@ def render_rle(
     for a far scene, spaced by a third of a voxel at its far end
     (``planes_per_voxel``: without them the agreement falls with the distance), (b) an
     exact test of the pixel's own ray against the elements of the adjacent
-    planes' texels (:func:`warp_lists`: only screen tiles that a drawn element
+    planes' texels (only screen tiles that a drawn element
     covers are warped), and (c) for the wide traversal's lists, a short exact
-    re-walk (:func:`refine_hits`) only for pixels whose
+    re-walk of the pixel's own ray only for pixels whose
     ray entered none of those elements, at most ``refine_budget`` of them (the
     scatter's warp needs none: ``RenderSettings.refine_steps``).  Elements are
     still processed once per plane, never per pixel.

@@ -146,12 +146,17 @@ def rows_per_pair(*, accelerator: bool = False) -> int:
 
 
 def scatter_limits(rle, num_planes: int) -> str | None:
-    """Why :func:`scatter_ray_buffer` cannot draw a scene, or None.
+    """None if the scatter traversal takes a map, else which of its limits the map exceeds.
 
-    A map below 16384 columns a side, 4096 voxels high, 8 levels and 64 elements
-    a column (its packed words), with fewer than ``2^31`` element instances (an
-    instance map's tiles times the object's elements, a tail that columns share
-    counted once per column), seen through at most 65535 planes.
+    It takes maps below 16384 columns a side, 4096 voxels high, 8 levels and 64
+    elements a column (packed words), with under ``2^31`` element instances (tiles
+    times the object's elements, a shared tail counted once per column), seen through
+    at most 65535 planes; ``traversal="auto"`` walks a map beyond them wide.
+
+    Args:
+        rle: the map (:class:`~jaxgfx.raycast.RLEVolume`).
+        num_planes: the frame's planes: ``RenderSettings.num_planes``, else
+            :func:`~jaxgfx.raycast.default_num_planes` with the settings and ``rle.shape``.
     """
     X, Y, Z = rle.shape
     if max(X, Z) >= 1 << _XZ_BITS or Y >= 1 << _H_BITS or rle.levels > 8:

@@ -63,12 +63,12 @@ class RenderSettings:
             ``num_planes`` by ``planes_per_voxel (X + Z)``.
         traversal: ``"scatter"``: every element projected into the planes that
             cross its cell, each texel keeping its first writer by a scatter-min
-            of the walk order (:mod:`~jaxgfx._src.voxel.scatter`: a few wide
+            of the walk order (a few wide
             steps a frame); ``"wide"``: each plane walked in blocks of cells, a
-            block per plane per loop step (:mod:`~jaxgfx._src.voxel.wide`: tens
+            block per plane per loop step (tens
             of steps, each as wide as the planes).  ``"auto"`` (default):
             ``"scatter"`` for a map within its limits
-            (:func:`~jaxgfx._src.voxel.scatter.scatter_limits`), on every
+            (:func:`~jaxgfx.raycast.scatter_limits`), on every
             platform; otherwise ``"wide"``, with 512 ``slots`` where the program
             is lowered for the CPU (``jax.lax.platform_dependent``).
         block_cells: wide traversal: major-axis columns per block (default 16).
@@ -77,15 +77,17 @@ class RenderSettings:
         slots: wide traversal: planes stepped at once, a done plane's slot taking
             the next plane (None: all planes every step, fewest steps; ``"auto"``
             on the CPU: 512).
-        window: scatter traversal: (element, plane) pairs per loop step (None:
-            :func:`~jaxgfx._src.voxel.scatter.default_window`).
+        window: scatter traversal: (element, plane) pairs per loop step (None: a
+            power of two of at least 2^14 sized from the frame: half its pixels on the
+            CPU; on an accelerator, where a step costs a launch and a host sync, a few
+            times its pixels, shared by a vectorized batch).
         texels: scatter traversal: size of the ray buffer, the planes' rows back
-            to back (None: :func:`~jaxgfx._src.voxel.scatter.default_texels`);
-            a frame with more is drawn in passes (``stats["passes"]``).
+            to back (None: four per pixel, at most every plane's whole column and
+            2^24); a frame with more is drawn in passes (``stats["passes"]``).
         chunk: scatter traversal of an instance map: element instances (a tile's
-            element at the tile's mip level) gathered at once (None:
-            :func:`~jaxgfx._src.voxel.scatter_elements.default_chunk`); a frame with more
-            takes them in turn.
+            element at the tile's mip level) gathered at once (None: the power of
+            two at or above the frame's pixels, at least 2^14: about one instance a
+            pixel at the one-pixel LOD); a frame with more takes them in turn.
         batching: the ``vmap`` rule: ``"frames"`` (one frame after another,
             ``lax.map``), ``"vectorized"`` (the frames as one vmapped program) or
             ``"auto"`` (default: frames on the CPU, vector elsewhere).
