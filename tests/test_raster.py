@@ -254,6 +254,29 @@ def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(user_jit, 
     assert compiles.count == 0
 
 
+def test_an_eager_call_runs_one_compiled_frame(raster_jit, compile_counter):
+    # Called outside jit, rasterize and analytic_antialias run their frame as one compiled
+    # program: a new camera of the same size compiles nothing (op by op, the z-buffer's and
+    # the outline's loops compiled again at every call, seconds each), and the frame is the
+    # jitted call's up to float rounding (the two programs fuse the faces' clamp apart).
+    from jaxgfx.silhouette import analytic_antialias, silhouette_edges
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    v = np.asarray(mesh.vertices, np.float32)
+    f = np.asarray(mesh.faces, np.int32)
+    e = silhouette_edges(f)
+    cams = orbit_cameras([0, 0, 0], 3.0, 2, width=24, height=18)
+    c0, c1 = (jax.tree_util.tree_map(lambda x, k=k: x[k], cams) for k in range(2))
+    eager = rasterize(c0, v, f, v)
+    assert np.mean(np.asarray(eager.tri_id) >= 0) > 0.2
+    _same_frames(jax.tree_util.tree_map(lambda x: x[None], raster_jit(c0, v, f, v)), eager, 0)
+    aa = analytic_antialias(c0, v, f, eager, edges=e)
+    assert np.abs(np.asarray(aa) - np.asarray(eager.color)).max() > 0.05  # outlines blended
+    with compile_counter() as compiles:
+        jax.block_until_ready(analytic_antialias(c1, v, f, rasterize(c1, v, f, v), edges=e))
+    assert compiles.count == 0
+
+
 def test_reverse_mode_through_vmap():
     # The custom_vmap z-buffer sits behind stop_gradient: grad of a vmapped render works
     # and equals the sum of the per-camera gradients.
@@ -272,8 +295,9 @@ def test_reverse_mode_through_vmap():
     np.testing.assert_allclose(g_vmap, g_loop, rtol=1e-4, atol=1e-4)
 
 
-def test_stacked_frames_visibility_matches_single():
-    # visibility(frames=B) (one B*H*W z-buffer) gives each frame's own result.
+def test_stacked_frames_visibility_matches_single(user_jit):
+    # visibility(frames=B) (one B*H*W z-buffer) gives each frame's own result, bit for bit
+    # (two programs: at the user's code generation).
     from jaxgfx._src.camera import world_to_camera_soa
     from jaxgfx._src.zbuffer import _frame_setup, visibility
 
@@ -285,7 +309,7 @@ def test_stacked_frames_visibility_matches_single():
     setup = jax.jit(lambda c: _frame_setup(c, v, f, False, 2, world_to_camera_soa(c, v)))
     setups = [setup(c) for c in cams]
     both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b], -1), *setups)
-    vis = jax.jit(visibility, static_argnums=(2, 3, 4))
+    vis = user_jit(visibility, static_argnums=(2, 3, 4))
     inv2, fid2 = vis(cams[0], both, 2, 64, 2)
     for k, (c, s) in enumerate(zip(cams, setups, strict=True)):
         inv1, fid1 = vis(c, s, 2, 64, 1)

@@ -1143,7 +1143,7 @@ def test_blend_keeps_the_seam_and_settles():
     assert np.abs(np.asarray(again.vertices) - np.asarray(blended.vertices)).max() < 0.25
 
 
-def test_blend_compact_rows_equal_every_row(monkeypatch):
+def test_blend_compact_rows_equal_every_row(monkeypatch, user_jit):
     # weld_seam / blend_seam work on compacted ring and band rows when they fit their
     # lists, on every row otherwise: both paths give bit-identical meshes on XLA:CPU.  (On
     # an H100, XLA:GPU fused the normals' normalisation differently per path: 1 ulp.)
@@ -1155,7 +1155,8 @@ def test_blend_compact_rows_equal_every_row(monkeypatch):
         monkeypatch.setattr(meshing, "_RING_SHARE", share)
         monkeypatch.setattr(postprocess, "_BAND_SHARE", share)
         # a fresh function each time: jax.jit caches traces per function object
-        outs.append(jax.jit(lambda i, o: postprocess.blend_seam(i, o))(inner, outer))
+        # (two programs compared bit for bit: at the user's code generation)
+        outs.append(user_jit(lambda i, o: postprocess.blend_seam(i, o))(inner, outer))
     ulps = 0 if jax.default_backend() == "cpu" else 1
     for field in ("vertices", "normals"):
         a, b = (np.asarray(getattr(o, field)) for o in outs)

@@ -129,10 +129,13 @@ def render_rle(
     """Renders an :class:`~jaxgfx.raycast.RLEVolume` with the per-plane ray caster (4.5).
 
     ``jax.jit(render_rle)`` needs no static arguments (the :class:`RenderSettings`
-    are static pytree metadata).  ``jax.vmap`` over a batched camera (same
+    are static pytree metadata); called eagerly, the frame runs as the same
+    compiled program (compiled once per scene layout, camera size and settings).
+    ``jax.vmap`` over a batched camera (same
     resolution, :func:`~jaxgfx.camera.stack_cameras`) is one program (a
     ``custom_vmap`` rule, :class:`RenderSettings` ``batching``): lowered for the
-    CPU it renders the views one after another (bit-identical to a loop, no slower
+    CPU it renders the views one after another (bit-identical to a loop of eager
+    or jitted calls at XLA's default flags, no slower
     per frame; shard the batch over devices to use more cores,
     :func:`jaxgfx.sweep.sharded_renderer`); lowered for an accelerator it renders
     them as one wider frame, a batch taking about its slowest frame's dependent
