@@ -23,6 +23,12 @@ work:
    another); with the process CPU time per frame of the vmap and loop rows.  The process has
    one host device per core (``jax_num_cpu_devices``, set before JAX starts; the machine
    line names the devices).
+3. With ``--stripes`` (instead of both): the bunny's frame (colour and depth) at 512x384 and
+   1024x768 with its shading in one pass and in stripes of rows (``STRIPE_RULES``; XLA:CPU's
+   rule is stripes of at most 2^18 pixels), wall and process CPU time, and whether the
+   frames agree.  ``--fresh-memory`` leaves out ``jaxgfx.keep_freed_memory()``, so that
+   XLA:CPU's large buffers come fresh from the OS every call, as in a script that does not
+   call it.
 
 Timing: compile excluded; the methods are timed in interleaved rounds (each round runs every
 method once) and the best round is reported, so load from other processes hits all alike.
@@ -31,7 +37,7 @@ matrix) is outside the timing; see ``experiments/_raster_peers.py``.  Peers come
 ``pip install '.[bench]'`` and the OS packages ``libegl1 libgl1-mesa-dri libegl-mesa0``
 (llvmpipe) and ``libusb-1.0-0`` (open3d); a missing peer is skipped with the printed reason.
 
-    python -m experiments.bench_raster [--quick] [--out DIR]
+    python -m experiments.bench_raster [--quick] [--out DIR] [--stripes [--fresh-memory]]
 
 writes ``table.md``/``table.json`` (both tables), ``bench_raster.png`` (the figure) and depth
 images (``*_depth.png``: jaxgfx; ``*_llvmpipe_depth.png``: the GL peer, for a look).
@@ -289,6 +295,61 @@ def batch_table(args, peers_for) -> list[dict]:
     return rows
 
 
+STRIPE_RULES = {"one pass": None, "stripes <= 2^18 px": 1 << 18, "stripes <= 2^16 px": 1 << 16}
+"""The ``--stripes`` table's shading rules: the whole frame at once, or rows in stripes of at
+most that many pixels (``lax.map``); 2^18 is XLA:CPU's rule in ``jaxgfx._src.raster``."""
+
+
+def stripes_table(args) -> list[dict]:
+    """One bunny frame (colour and depth) with its shading in stripes of rows or in one pass.
+
+    Each rule is its own ``jax.jit(rasterize)``, traced with ``jaxgfx._src.raster._stripes``
+    replaced by the rule's stripe count; the rules are timed in interleaved rounds.  The
+    frames must agree: the same face ids, colours within float rounding.
+    """
+    from unittest import mock
+
+    import jaxgfx._src.raster as raster_mod
+    from jaxgfx.camera import look_at
+
+    name, tag, mesh, view = next(iter(scenes(args.quick)))
+    v = np.asarray(mesh.vertices, np.float32)
+    f = np.asarray(mesh.faces, np.int32)
+    rule_of = raster_mod._stripes
+    rows = []
+    for w, h in [(128, 96)] if args.quick else [(512, 384), (1024, 768)]:
+        cam = look_at(view["eye"], view["target"], 50.0, w, h, view["near"], view["far"])
+        methods, counts = {}, {}
+        for rule, pixels in STRIPE_RULES.items():
+            n = 1 if pixels is None else rule_of(h, w, pixels)
+            # A function of its own per rule: jit's trace cache is keyed by the function.
+            fn = jax.jit(lambda cam, v, f, a: raster_mod.rasterize(cam, v, f, a))
+            with mock.patch.object(raster_mod, "_stripes", lambda h, w, n=n: n):
+                jax.block_until_ready(fn(cam, v, f, v))  # traced and compiled here
+            methods[rule] = lambda fn=fn, cam=cam: jax.block_until_ready(fn(cam, v, f, v))
+            counts[rule] = n
+        cpu: dict = {}
+        best, outs = best_rounds(methods, args.rounds, cpu)
+        ref = outs["one pass"]
+        for rule in methods:
+            out = outs[rule]
+            rows.append(
+                dict(
+                    mesh=name,
+                    size=f"{w}x{h}",
+                    rule=rule,
+                    stripes=counts[rule],
+                    ms=best[rule] * 1e3,
+                    vs_one_pass=best[rule] / best["one pass"],
+                    cpu_ms=cpu[rule] * 1e3,
+                    cpu_vs_one_pass=cpu[rule] / cpu["one pass"],
+                    same_faces=bool(np.array_equal(out.tri_id, ref.tri_id)),
+                    color_max_diff=float(np.max(np.abs(np.asarray(out.color - ref.color)))),
+                )
+            )
+    return rows
+
+
 def figure(path: Path, frame_rows: list[dict], batch_rows: list[dict]) -> None:
     """Left: ms per frame for each scene and size; right: frames/s against the batch size."""
     import matplotlib
@@ -359,15 +420,29 @@ def main(argv=None) -> int:
         "--batches", default=None, help="comma-separated camera counts (default 1,8,32,128)"
     )
     ap.add_argument("--no-frames", action="store_true", help="only the batch table")
+    ap.add_argument(
+        "--stripes",
+        action="store_true",
+        help="only the shading-stripes table: one bunny frame, its shading in one pass or in "
+        "stripes of rows",
+    )
+    ap.add_argument(
+        "--fresh-memory",
+        action="store_true",
+        help="skip jaxgfx.keep_freed_memory(): large buffers come fresh from the OS every "
+        "call, as in a script that does not call it",
+    )
     args = ap.parse_args(argv)
     # As the jaxgfx command does: XLA:CPU's calls reuse freed memory (no fresh pages).
     import jaxgfx
 
-    jaxgfx.keep_freed_memory()
+    kept = False if args.fresh_memory else jaxgfx.keep_freed_memory()
     args.rounds = args.rounds or (2 if args.quick else 5)
     # One host device per core for the sharded renderer, before JAX's backends start.
     if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
         jax.config.update("jax_num_cpu_devices", _cores())
+    if args.stripes:
+        return _stripes_main(args, kept)
     from experiments._raster_peers import load_peers
     from jaxgfx.raster import rasterize
 
@@ -423,6 +498,30 @@ def main(argv=None) -> int:
         )
         if frame_rows:
             figure(Path(args.out) / "bench_raster.png", frame_rows, batch_rows)
+    return 0
+
+
+def _stripes_main(args, kept: bool) -> int:
+    """``--stripes``: prints (and with ``--out`` writes) the shading-stripes table."""
+    rows = stripes_table(args)
+    command = "python -m experiments.bench_raster --stripes" + (
+        " --fresh-memory" if args.fresh_memory else ""
+    )
+    cols = ["mesh", "size", "rule", "stripes", "ms", "vs_one_pass", "cpu_ms", "cpu_vs_one_pass"]
+    cols += ["same_faces", "color_max_diff"]
+    md = (
+        "## Shading in stripes of rows against one pass (ms per frame, colour and depth; "
+        "cpu_ms: process CPU time, every thread)\n\n"
+        + markdown_table(rows, cols)
+        + f"\n\nmachine: {machine()}; {args.rounds} rounds, best round; freed memory kept "
+        f"for reuse (keep_freed_memory): {kept}\n"
+    )
+    print(md)
+    if args.out:
+        meta = dict(machine=machine(), command=command, rounds=args.rounds, kept_memory=kept)
+        write_table(
+            args.out, "Rasterizer shading: stripes of rows or one pass", md, dict(meta, rows=rows)
+        )
     return 0
 
 

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import importlib.util
 import types
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -142,6 +145,47 @@ def test_dda_ray_3d_matches_bruteforce():
             assert t[k] == pytest.approx(tb, abs=1e-4)
             assert occ[tuple(vox[k])]
             np.testing.assert_allclose(rgb[k], col[tuple(vox[k])] / 255.0, atol=1e-6)
+
+
+def _jaxgfx_imports(module: str) -> dict[str, set[str]]:
+    """The jaxgfx modules ``module`` imports (by its source), each with the names it takes."""
+    spec = importlib.util.find_spec(module)
+    assert spec is not None and spec.origin is not None, module
+    package = module if spec.submodule_search_locations else module.rpartition(".")[0]
+    found: dict[str, set[str]] = {}
+    for node in ast.walk(ast.parse(Path(spec.origin).read_text())):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                found.setdefault(alias.name, set())
+        elif isinstance(node, ast.ImportFrom):
+            name = node.module or ""
+            if node.level:
+                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                name = f"{base}.{name}" if name else base
+            found.setdefault(name, set()).update(alias.name for alias in node.names)
+    return {m: names for m, names in found.items() if m.split(".")[0] == "jaxgfx"}
+
+
+def test_reference_imports_nothing_from_the_renderer():
+    # The reference checks the renderer only if it runs none of the renderer's code: a
+    # helper both shared (the DDA's set-up once was) would be wrong in both alike.  It may
+    # take the camera's pixel rays (the rays every renderer and peer is compared on) and
+    # the result type, nothing else of the package.
+    renderer: set[str] = set()
+    todo = ["jaxgfx._src.voxel.render"]
+    while todo:  # the frame's modules: render and everything it imports, transitively
+        module = todo.pop()
+        if module not in renderer:
+            renderer.add(module)
+            todo += _jaxgfx_imports(module)
+    assert {"jaxgfx._src.voxel.grid", "jaxgfx._src.voxel.warp"} < renderer
+    allowed = {
+        "jaxgfx._src.camera": {"Camera", "pixel_rays"},
+        "jaxgfx._src.voxel.settings": {"RenderOutput"},
+    }
+    for module, names in _jaxgfx_imports("jaxgfx._src.voxel.reference").items():
+        assert module in allowed, f"the reference imports {sorted(names)} from {module}"
+        assert names <= allowed[module], f"the reference imports {sorted(names)} from {module}"
 
 
 def test_vanishing_point_cases():

@@ -512,10 +512,8 @@ def _shade_rows(cam, pv, faces, attributes, inv, fid, row0, h: int):
     visible face from the z-buffer.
     """
     w = cam.width
-    stripes = _stripes(h, w)
-    rows = h // stripes
 
-    def shade(i, inv, fid):
+    def shade(first, rows: int, inv, fid):
         # The visible face's camera-space corners, gathered per pixel (not an (F, 3, 3)
         # table: see interpolate).
         fv = jnp.take(faces, jnp.where(fid != _NO_TRI, fid, 0), axis=0, mode="clip")
@@ -524,21 +522,35 @@ def _shade_rows(cam, pv, faces, attributes, inv, fid, row0, h: int):
         # depend on how a sweep splits frames over devices (1-D gathers fused into it
         # gave depths 1.5e-6 apart).
         g = jnp.take(pv, fv.reshape(-1), axis=0, mode="clip").reshape(-1, 9).T
-        depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, row0 + i * rows, rows)
+        depth, tri_id, bary = _resolve_rows(cam, g, inv, fid, first, rows)
         # The same corner indices again (tri_id is fid or -1 -> face 0 as above): one
         # per-pixel gather of faces less (terrain 1024x768: frame -7 %, bunny -13 %).
         colour = _interpolate_corners(attributes, [fv[:, k] for k in range(3)], tri_id, bary)
         return colour, depth, tri_id, bary
 
+    stripes = _stripes(h, w)
     if stripes == 1:
-        return shade(0, inv, fid)
-    # Large images are shaded a stripe of rows at a time: the per-pixel temporaries of
-    # a whole 1024x768 frame (~40 MB) come fresh from the OS every call (page faults).
-    out = jax.lax.map(
-        lambda a: shade(*a),
-        (jnp.arange(stripes, dtype=jnp.int32), inv.reshape(stripes, -1), fid.reshape(stripes, -1)),
+        return shade(row0, h, inv, fid)
+    rows = h // stripes
+
+    def in_stripes(inv, fid):
+        # XLA:CPU: a large frame is shaded a stripe of rows at a time, because the
+        # per-pixel temporaries of a whole 1024x768 frame (~40 MB) come fresh from the OS
+        # every call (page faults).  An accelerator shades the frame in one wide pass: a
+        # loop over stripes would only add dependent steps there.
+        out = jax.lax.map(
+            lambda a: shade(row0 + a[0] * rows, rows, a[1], a[2]),
+            (
+                jnp.arange(stripes, dtype=jnp.int32),
+                inv.reshape(stripes, -1),
+                fid.reshape(stripes, -1),
+            ),
+        )
+        return tuple(x.reshape(h, w, *x.shape[3:]) for x in out)
+
+    return jax.lax.platform_dependent(
+        inv, fid, cpu=in_stripes, default=functools.partial(shade, row0, h)
     )
-    return tuple(x.reshape(h, w, *x.shape[3:]) for x in out)
 
 
 @functools.cache

@@ -5,9 +5,9 @@ cell's column (through the instance tile map), :func:`_column_runs` reads a
 column's RLE elements as voxel height ranges (through the running sums of
 :attr:`~jaxgfx.raycast.RLEVolume.tail_sums`, no decode of the elements above),
 :func:`_column_elements` all of them.  :func:`_dda_entry` starts the exact
-3-D DDA (Amanatides & Woo) that the per-pixel re-walk (:mod:`.warp`) and the
-reference renderer (:mod:`.reference`) share.  :func:`_safe_div` is the one guarded
-division of the chapter.
+3-D DDA (Amanatides & Woo) of the per-pixel re-walk (:mod:`.warp`); the reference
+renderer (:mod:`.reference`) has its own, so that it checks this one.
+:func:`_safe_div` is the one guarded division of the chapter.
 """
 
 from __future__ import annotations

@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +31,7 @@ from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.planes import screen_segments, vanishing_point
 from jaxgfx._src.voxel.scatter import scatter_frame, scatter_limits
-from jaxgfx._src.voxel.settings import RenderSettings
+from jaxgfx._src.voxel.settings import RenderOutput, RenderSettings
 from jaxgfx._src.voxel.warp import refine_hits, warp_lists
 from jaxgfx._src.voxel.wide import traverse_wide
 
@@ -44,23 +43,6 @@ __all__ = [
     "lod_distance_for",
     "check_camera_outside",
 ]
-
-
-class RenderOutput(NamedTuple):
-    """Result of a voxel render.
-
-    Attributes:
-        color: (H, W, 3) float32 in [0, 1]; 0 where nothing was hit.
-        depth: (H, W) float32 camera-space z, +inf where nothing was hit.
-        stats: dict of () int32 counters (``elements_total``: elements in the
-            traversed columns, ``elements_processed``: those visited before the
-            plane was done, ``elements_rendered``: those that passed culling),
-            empty for the reference renderer.
-    """
-
-    color: jax.Array
-    depth: jax.Array
-    stats: dict
 
 
 def default_num_planes(

@@ -1,20 +1,22 @@
-"""The static settings of the voxel renderer: :class:`RenderSettings`.
+"""The static settings of the voxel renderer, :class:`RenderSettings`, and its result type.
 
 Sizes and switches that fix :func:`~jaxgfx.raycast.render_rle`'s program, one
 frozen dataclass (a pytree without leaves), so ``jax.jit(render_rle)`` compiles once
-per distinct settings.
+per distinct settings.  :class:`RenderOutput` is what the renderer and the reference
+renderer (:mod:`.reference`, which imports no module of the renderer) return.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 
 from jaxgfx._src.checks import check_float, check_int, static_field
 from jaxgfx._src.frames import BATCHING
 
-__all__ = ["RenderSettings"]
+__all__ = ["RenderOutput", "RenderSettings"]
 
 _TRAVERSALS = ("auto", "wide", "scatter")
 _BATCHINGS = BATCHING
@@ -140,3 +142,20 @@ class RenderSettings:
             raise ValueError(f"oversample must be > 0, got {fields['oversample']}")
         for name, value in fields.items():
             object.__setattr__(self, name, value)
+
+
+class RenderOutput(NamedTuple):
+    """Result of a voxel render.
+
+    Attributes:
+        color: (H, W, 3) float32 in [0, 1]; 0 where nothing was hit.
+        depth: (H, W) float32 camera-space z, +inf where nothing was hit.
+        stats: dict of () int32 counters (``elements_total``: elements in the
+            traversed columns, ``elements_processed``: those visited before the
+            plane was done, ``elements_rendered``: those that passed culling),
+            empty for the reference renderer.
+    """
+
+    color: jax.Array
+    depth: jax.Array
+    stats: dict
