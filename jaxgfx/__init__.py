@@ -14,14 +14,16 @@ The engine (ch. 2) is in ``jaxgfx.camera`` (one camera for every pass), ``jaxgfx
 ``jaxgfx.post`` (screen-space normals, AO, anti-aliasing), ``jaxgfx.silhouette``
 (differentiable silhouettes: analytic antialiasing), ``jaxgfx.io``, ``jaxgfx.scene``
 (passes joined into one frame) and ``jaxgfx.sweep`` (batched, sharded, resumable sweeps;
-a module: its entry points are :func:`run_sweep` and :func:`load_sweep`).  Implementation
-modules live in the private package ``jaxgfx._src``.
+a module: its entry points are :func:`run_sweep` and :func:`load_sweep`); ``jaxgfx.checks``
+checks the values of traced arguments too (:func:`checked`).  Implementation modules live
+in the private package ``jaxgfx._src``.
 """
 
 __version__ = "0.1.0"
 
 from jaxgfx import (
     camera,
+    checks,
     compose,
     io,
     post,
@@ -44,6 +46,7 @@ from jaxgfx.camera import (
     stack_cameras,
     supersampled,
 )
+from jaxgfx.checks import checked
 from jaxgfx.compose import Frame, background, composite, depth_image, fog, lambert, to_uint8
 from jaxgfx.io import atomic_write, load_mesh, mesh_arrays, save_mesh, save_npy, save_png
 from jaxgfx.post import ambient_occlusion, antialias, screen_space_normals, shade
@@ -154,6 +157,7 @@ __all__ = [
     "sharded_renderer",
     "sharded_vmap",
     "keep_freed_memory",
+    "checked",
     # ch. 3 terrain
     "XorTerrain",
     "SawTerrain",
@@ -208,6 +212,7 @@ __all__ = [
     "load_gltf_skin",
     # chapter and engine modules
     "camera",
+    "checks",
     "raster",
     "compose",
     "post",
