@@ -31,7 +31,7 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
 3.4.1-3.4.2 Clip-Box and 3.4.3 filling it, ``clipbox.py``:
     :class:`ClipBox`, :func:`clipbox_origin`, :func:`sample_clipbox`.
 3.4.5 Nesting (Fig. 3.2, 3.10), ``clipbox.py``:
-    :class:`NestedClipBoxes`, :func:`nested_origins`, :func:`is_nested`.
+    :class:`NestedClipBoxes`, :func:`nested_origins`, :func:`is_nested`, :func:`max_levels`.
 3.4.6 Moving the view-point (Fig. 3.11), ``clipbox.py``:
     :func:`slab_thickness`, :func:`shift_clipbox`, :func:`reused_fraction`.
 3.4.4 Volume-data to polygon conversion (Fig. 3.4, 3.8), ``meshing.py``:
@@ -58,6 +58,7 @@ from jaxgfx._src.terrain.clipbox import ClipBox as ClipBox
 from jaxgfx._src.terrain.clipbox import NestedClipBoxes as NestedClipBoxes
 from jaxgfx._src.terrain.clipbox import clipbox_origin as clipbox_origin
 from jaxgfx._src.terrain.clipbox import is_nested as is_nested
+from jaxgfx._src.terrain.clipbox import max_levels as max_levels
 from jaxgfx._src.terrain.clipbox import nested_origins as nested_origins
 from jaxgfx._src.terrain.clipbox import reused_fraction as reused_fraction
 from jaxgfx._src.terrain.clipbox import sample_clipbox as sample_clipbox
@@ -161,6 +162,7 @@ __all__ = [
     "NestedClipBoxes",
     "nested_origins",
     "is_nested",
+    "max_levels",
     # 3.4.6 moving the view-point
     "slab_thickness",
     "shift_clipbox",

@@ -1308,6 +1308,11 @@ def test_cli_terrain_errors(tmp_path, capsys):
     assert "--resolution" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--levels", "0") == 2
     assert "levels" in capsys.readouterr().err
+    # too many levels for the int32 world: one line naming --levels and the most that work
+    assert _terrain_cli(tmp_path, "--levels", "25") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("jaxgfx terrain: error: --levels must be <= 21 with --resolution 16")
     assert _terrain_cli(tmp_path, "--cell", "2") == 2
     assert "--cell applies to --function heightmap" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--depth", str(tmp_path / "d.png")) == 2
@@ -1370,6 +1375,16 @@ def test_cli_terrain_geotiff_prints_its_scale(tmp_path, capsys):
     np.testing.assert_allclose(mpv, mpv[0], rtol=1e-6)
     assert rep["crs"] == "EPSG:4326" and rep["edge"] == "apron"
     assert rep["cell"][0] == 1.0 and rep["cell"][1] == pytest.approx(truth[1] / truth[0])
+
+
+def test_levels_are_limited_by_the_int32_world_before_any_work():
+    assert T.max_levels(16) == T.max_levels(256) == 21  # levels 0..20
+    assert T.max_levels(1024) == 19  # 2 N 2^L voxels around the viewer fit int32
+    assert T.max_levels(2**28) == 1
+    with pytest.raises(ValueError, match=r"levels must be <= 21 for boxes of size 16.*got 25"):
+        T.ClipBoxPipeline(T.SawTerrain(), size=16, levels=25)
+    with pytest.raises(ValueError, match="levels must be <= 19 for boxes of size 1024"):
+        T.nested_origins(np.zeros(3, np.int64), levels=20, size=1024)
 
 
 def test_subdivision_needs_a_key_and_views_draw_it(pipeline):

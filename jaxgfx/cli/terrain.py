@@ -66,11 +66,18 @@ def check_args(args) -> None:
 
 
 def check_source_args(args) -> None:
-    """Checks the options :func:`add_source_arguments` adds (no JAX): --resolution and the
-    height-map-only flags."""
+    """Checks the options :func:`add_source_arguments` adds (no JAX work): --resolution,
+    --levels and the height-map-only flags."""
     n = args.resolution
     if n < 8 or n % 8:
         raise CliError(f"--resolution must be a multiple of 8 and >= 8, got {n}")
+    from jaxgfx._src.terrain.clipbox import MAX_LEVEL, max_levels
+
+    if args.levels > max_levels(n):
+        raise CliError(
+            f"--levels must be <= {max_levels(n)} with --resolution {n} (levels run 0..{MAX_LEVEL} "
+            f"and the outer box must fit int32 world coordinates), got {args.levels}"
+        )
     if not args.function.startswith("heightmap:"):
         for flag, given in (
             ("--cell", args.cell is not None),
