@@ -17,7 +17,8 @@ Thesis section -> where it lives (implementation in ``jaxgfx/_src/terrain/``):
     ``PRIMITIVE_SPHERE`` / ``PRIMITIVE_BOX`` / ``PRIMITIVE_CYLINDER``.
 3.5.2 Elevation files (GeoTIFF, SRTM .hgt, ESRI .asc, USGS .dem, images, arrays), ``elevation.py``:
     :func:`read_heightmap` (:class:`HeightmapData`: heights, metres per sample along x
-    and z, height unit, CRS), :func:`load_heightmap`, :func:`metres_per_degree`.
+    and z, height unit, CRS, NODATA voids filled; :class:`NodataWarning`),
+    :func:`load_heightmap`, :func:`metres_per_degree`.
 3.5.2 height maps (Fig. 3.16) and 3.3.1 existing volumes, ``heightmap.py``:
     :func:`heightmap_terrain` (:class:`HeightmapTerrain` with its
     :class:`HeightmapMapping`; ``IMAGE_RELIEF``, ``APRON_FADE``), :func:`ground_height`,
@@ -76,6 +77,7 @@ from jaxgfx._src.terrain.display import mesh_to_trimesh as mesh_to_trimesh
 from jaxgfx._src.terrain.display import render_levels as render_levels
 from jaxgfx._src.terrain.display import weld_mesh as weld_mesh
 from jaxgfx._src.terrain.elevation import HeightmapData as HeightmapData
+from jaxgfx._src.terrain.elevation import NodataWarning as NodataWarning
 from jaxgfx._src.terrain.elevation import load_heightmap as load_heightmap
 from jaxgfx._src.terrain.elevation import metres_per_degree as metres_per_degree
 from jaxgfx._src.terrain.elevation import read_heightmap as read_heightmap
@@ -137,6 +139,7 @@ __all__ = [
     "random_csg_terrain",
     # 3.5.2 height maps, 3.3.1 volumes
     "HeightmapData",
+    "NodataWarning",
     "HeightmapMapping",
     "HeightmapTerrain",
     "VolumeTerrain",
