@@ -15,14 +15,16 @@ The engine (ch. 2) is in ``jaxgfx.camera`` (one camera for every pass), ``jaxgfx
 (differentiable silhouettes: analytic antialiasing), ``jaxgfx.io``, ``jaxgfx.scene``
 (passes joined into one frame) and ``jaxgfx.sweep`` (batched, sharded, resumable sweeps;
 a module: its entry points are :func:`~jaxgfx.sweep.run_sweep` and
-:func:`~jaxgfx.sweep.load_sweep`).  The implementation modules are private: every public name
-is in one of these modules.
+:func:`~jaxgfx.sweep.load_sweep`); ``jaxgfx.checks`` checks the values of traced arguments
+too (:func:`~jaxgfx.checks.checked`).  The implementation modules are private: every public
+name is in one of these modules.
 """
 
 __version__ = "0.1.0"
 
 from jaxgfx import (
     camera,
+    checks,
     compose,
     io,
     post,
@@ -45,6 +47,7 @@ from jaxgfx.camera import (
     stack_cameras,
     supersampled,
 )
+from jaxgfx.checks import checked
 from jaxgfx.compose import Frame, background, composite, depth_image, fog, lambert, to_uint8
 from jaxgfx.io import atomic_write, load_mesh, mesh_arrays, save_mesh, save_npy, save_png
 from jaxgfx.post import ambient_occlusion, antialias, screen_space_normals, shade
@@ -155,6 +158,7 @@ __all__ = [
     "sharded_renderer",
     "sharded_vmap",
     "keep_freed_memory",
+    "checked",
     # ch. 3 terrain
     "XorTerrain",
     "SawTerrain",
@@ -209,6 +213,7 @@ __all__ = [
     "load_gltf_skin",
     # chapter and engine modules
     "camera",
+    "checks",
     "raster",
     "compose",
     "post",

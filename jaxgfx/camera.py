@@ -11,6 +11,7 @@ take degrees.
 
 from __future__ import annotations
 
+from jaxgfx._src.camera import MAX_PIXELS as MAX_PIXELS
 from jaxgfx._src.camera import Camera as Camera
 from jaxgfx._src.camera import camera_basis as camera_basis
 from jaxgfx._src.camera import camera_from_degrees as camera_from_degrees
@@ -51,4 +52,5 @@ __all__ = [
     "stack_cameras",
     "validate_camera",
     "frame_points",
+    "MAX_PIXELS",
 ]

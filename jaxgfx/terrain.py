@@ -17,7 +17,8 @@ Thesis section -> where it lives (with the implementation module behind it):
     ``PRIMITIVE_SPHERE`` / ``PRIMITIVE_BOX`` / ``PRIMITIVE_CYLINDER``.
 3.5.2 Elevation files (GeoTIFF, SRTM .hgt, ESRI .asc, USGS .dem, images, arrays), ``elevation.py``:
     :func:`read_heightmap` (:class:`HeightmapData`: heights, metres per sample along x
-    and z, height unit, CRS), :func:`load_heightmap`, :func:`metres_per_degree`.
+    and z, height unit, CRS, NODATA voids filled; :class:`NodataWarning`),
+    :func:`load_heightmap`, :func:`metres_per_degree`.
 3.5.2 height maps (Fig. 3.16) and 3.3.1 existing volumes, ``heightmap.py``:
     :func:`heightmap_terrain` (:class:`HeightmapTerrain` with its
     :class:`HeightmapMapping`; ``IMAGE_RELIEF``, ``APRON_FADE``), :func:`ground_height`,
@@ -31,7 +32,7 @@ Thesis section -> where it lives (with the implementation module behind it):
 3.4.1-3.4.2 Clip-Box and 3.4.3 filling it, ``clipbox.py``:
     :class:`ClipBox`, :func:`clipbox_origin`, :func:`sample_clipbox`.
 3.4.5 Nesting (Fig. 3.2, 3.10), ``clipbox.py``:
-    :class:`NestedClipBoxes`, :func:`nested_origins`, :func:`is_nested`.
+    :class:`NestedClipBoxes`, :func:`nested_origins`, :func:`is_nested`, :func:`max_levels`.
 3.4.6 Moving the view-point (Fig. 3.11), ``clipbox.py``:
     :func:`slab_thickness`, :func:`shift_clipbox`, :func:`reused_fraction`.
 3.4.4 Volume-data to polygon conversion (Fig. 3.4, 3.8), ``meshing.py``:
@@ -58,6 +59,7 @@ from jaxgfx._src.terrain.clipbox import ClipBox as ClipBox
 from jaxgfx._src.terrain.clipbox import NestedClipBoxes as NestedClipBoxes
 from jaxgfx._src.terrain.clipbox import clipbox_origin as clipbox_origin
 from jaxgfx._src.terrain.clipbox import is_nested as is_nested
+from jaxgfx._src.terrain.clipbox import max_levels as max_levels
 from jaxgfx._src.terrain.clipbox import nested_origins as nested_origins
 from jaxgfx._src.terrain.clipbox import reused_fraction as reused_fraction
 from jaxgfx._src.terrain.clipbox import sample_clipbox as sample_clipbox
@@ -75,6 +77,7 @@ from jaxgfx._src.terrain.display import mesh_to_trimesh as mesh_to_trimesh
 from jaxgfx._src.terrain.display import render_levels as render_levels
 from jaxgfx._src.terrain.display import weld_mesh as weld_mesh
 from jaxgfx._src.terrain.elevation import HeightmapData as HeightmapData
+from jaxgfx._src.terrain.elevation import NodataWarning as NodataWarning
 from jaxgfx._src.terrain.elevation import load_heightmap as load_heightmap
 from jaxgfx._src.terrain.elevation import metres_per_degree as metres_per_degree
 from jaxgfx._src.terrain.elevation import read_heightmap as read_heightmap
@@ -136,6 +139,7 @@ __all__ = [
     "random_csg_terrain",
     # 3.5.2 height maps, 3.3.1 volumes
     "HeightmapData",
+    "NodataWarning",
     "HeightmapMapping",
     "HeightmapTerrain",
     "VolumeTerrain",
@@ -161,6 +165,7 @@ __all__ = [
     "NestedClipBoxes",
     "nested_origins",
     "is_nested",
+    "max_levels",
     # 3.4.6 moving the view-point
     "slab_thickness",
     "shift_clipbox",

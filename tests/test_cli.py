@@ -423,6 +423,44 @@ def test_inputs_that_are_not_what_they_claim_are_named(tmp_path, capsys, ico):
     )  # nothing was written
 
 
+def test_a_truncated_binary_ply_is_named_truncated(tmp_path, capsys):
+    from jaxgfx.io import load_mesh
+
+    data = trimesh.creation.icosphere(subdivisions=1).export(file_type="ply")  # 42 v, 80 f
+    start = data.index(b"end_header\n") + len(b"end_header\n")
+    cut = tmp_path / "cut.ply"
+    cases = {
+        # in the faces, where trimesh says "PLY is unexpected length!"
+        len(data) - 100: "42 of 42 vertices, 72 of 80 faces complete",
+        # between vertices and faces, where trimesh reads the vertices alone (no faces)
+        start + 42 * 12: "42 of 42 vertices, 0 of 80 faces complete",
+        start + 5 * 12 + 7: "5 of 42 vertices complete",
+    }
+    for size, found in cases.items():
+        cut.write_bytes(data[:size])
+        with pytest.raises(ValueError, match="declares 42 vertices and 80 faces") as err:
+            load_mesh(cut)
+        assert "is truncated" in str(err.value) and found in str(err.value)
+        assert "empty" not in str(err.value) and "point cloud" not in str(err.value)
+    # faces of different lengths (a triangle, then a quad), big-endian: walked row by row
+    head = b"ply\nformat binary_big_endian 1.0\nelement vertex 4\nproperty float x\n"
+    head += b"property float y\nproperty float z\nelement face 2\n"
+    head += b"property list uchar int vertex_indices\nend_header\n"
+    body = np.arange(12, dtype=">f4").tobytes() + bytes([3]) + np.arange(3, dtype=">i4").tobytes()
+    body += bytes([4]) + np.arange(4, dtype=">i4").tobytes()
+    cut.write_bytes(head + body[:-2])
+    with pytest.raises(ValueError, match="4 of 4 vertices, 1 of 2 faces complete"):
+        load_mesh(cut)
+    cut.write_bytes(head + body)  # whole (trimesh reads no lists of mixed lengths)
+    with pytest.raises(ValueError) as err:
+        load_mesh(cut)
+    assert "is truncated" not in str(err.value)
+    # the command line says the same in one line
+    cut.write_bytes(data[: len(data) - 100])
+    _refused(["render", str(cut), "--out", str(tmp_path / "o.png")])
+    _error_line(capsys, "is truncated", "declares 42 vertices and 80 faces", "ends early")
+
+
 @pytest.mark.skipif(not os.path.isdir("/sys"), reason="needs Linux's /sys")
 def test_outputs_are_tried_not_just_permission_checked(capsys, ico):
     # /sys passes os.access for root, yet no file can be created in it: tried, refused.

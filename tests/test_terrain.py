@@ -7,6 +7,7 @@ import dataclasses
 import json
 import os
 import time
+import warnings
 from collections import Counter
 
 import jax
@@ -263,8 +264,9 @@ def test_heightmap_mapping_formulas_and_json():
     assert not m.wrap and hash(m) == hash(dataclasses.replace(m))
     d = m.to_dict()
     keys = {"origin", "cell", "vertical_scale", "base", "shape", "edge", "apron", "crs"}
-    assert set(d) == keys | {"metres_per_sample", "metres_per_voxel"}
+    assert set(d) == keys | {"metres_per_sample", "metres_per_voxel", "nodata"}
     assert d["cell"] == [4.0, 4.0] and d["edge"] == "apron" and d["metres_per_voxel"] is None
+    assert d["nodata"] == {"count": 0, "fraction": 0.0}  # an array: no voids
     assert T.heightmap_terrain(h, wrap=True).mapping.to_dict()["edge"] == "wrap"
     assert json.loads(json.dumps(d)) == d
     r, c = np.meshgrid(np.arange(2), np.arange(3), indexing="ij")
@@ -412,8 +414,12 @@ def test_dem_fill_grows_known_samples_outwards():
 
 @pytest.mark.skipif(not os.path.isdir(DATA), reason="../shared/data/terrain is absent")
 def test_st_helens_true_proportions():
-    d = T.read_heightmap(os.path.join(DATA, "SainteHelens.dem"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", T.NodataWarning)  # no voids: no warning
+        d = T.read_heightmap(os.path.join(DATA, "SainteHelens.dem"))
     assert d.spacing == (30.0, 30.0) and d.height_unit == 1.0 and d.heights.shape == (466, 327)
+    # the corners outside the quad are filled, but they are no voids
+    assert d.filled == 3497 and d.nodata == 0 and d.nodata_value == -32767
     t = T.heightmap_terrain(os.path.join(DATA, "SainteHelens.dem"), cell=2)
     m = t.mapping
     assert m.vertical_scale == pytest.approx(2 / 30) and m.origin == (-327, -466)
@@ -567,8 +573,10 @@ def test_geotiff_geographic_srtm_style(tmp_path):
     h[5, 6] = h[0, 0] = -32768
     path = tmp_path / "srtm_like.tif"
     _write_geotiff(path, h, geographic=True, nodata=-32768)
-    d = T.read_heightmap(path)
-    assert d.crs == "EPSG:4326" and d.filled == 2 and d.height_unit == 1.0
+    with pytest.warns(T.NodataWarning, match=r"srtm_like.tif': 2 of 480 samples \(0.417 %\)"):
+        d = T.read_heightmap(path)
+    assert d.crs == "EPSG:4326" and d.filled == d.nodata == 2 and d.height_unit == 1.0
+    assert d.nodata_value == -32768
     assert d.heights.min() >= 700 and d.heights[5, 6] > 700  # filled from its neighbours
     lat = 46.5 - 12 / 1200  # the map's centre latitude
     truth = _ground_spacing(lat, -122.5, 1 / 1200, 1 / 1200)
@@ -611,8 +619,9 @@ def test_srtm_hgt_tile(tmp_path):
     h[60, 60] = -32768
     path = tmp_path / "S34E151.hgt"
     h.tofile(path)
-    d = T.read_heightmap(path)
-    assert d.filled == 1 and d.heights.shape == (n, n) and d.heights[60, 60] > 0
+    with pytest.warns(T.NodataWarning, match=r"1 of 14641 samples .* NODATA \(-32768\)"):
+        d = T.read_heightmap(path)
+    assert d.filled == d.nodata == 1 and d.heights.shape == (n, n) and d.heights[60, 60] > 0
     truth = _ground_spacing(-33.5, 151.5, 1 / 120, 1 / 120)
     _check_true_proportions(T.heightmap_terrain(d), truth)
 
@@ -624,25 +633,83 @@ def test_esri_ascii_grid(tmp_path):
     head = "ncols 24\nnrows 20\nxllcorner 500000\nyllcorner 4000000\ncellsize 25\n"
     path = tmp_path / "grid.asc"
     path.write_text(head + "NODATA_value -9999\n" + rows + "\n")
-    d = T.read_heightmap(path)
-    assert d.filled == 1 and d.spacing == (25.0, 25.0) and d.heights[3, 4] > 290
+    with pytest.warns(T.NodataWarning, match="grid.asc': 1 of 480 samples"):
+        d = T.read_heightmap(path)
+    assert d.filled == d.nodata == 1 and d.spacing == (25.0, 25.0) and d.heights[3, 4] > 290
     _check_true_proportions(T.heightmap_terrain(d), (25.0, 25.0))
     # a .prj beside it says feet; a geographic grid without one is recognised by its numbers
     path.with_suffix(".prj").write_text(
         'PROJCS["NAD83 / x (ftUS)",GEOGCS["NAD83",UNIT["degree",0.0174532925199433]],'
         'UNIT["US survey foot",0.304800609601219]]'
     )
-    np.testing.assert_allclose(T.read_heightmap(path).spacing, 25 * 0.304800609601219)
+    with pytest.warns(T.NodataWarning):
+        np.testing.assert_allclose(T.read_heightmap(path).spacing, 25 * 0.304800609601219)
     geo = tmp_path / "geo.asc"
     geo.write_text(
         "ncols 24\nnrows 20\nxllcenter -112.1\nyllcenter 36.1\ncellsize 0.000833333333\n"
         + rows
         + "\n"
     )
-    d = T.read_heightmap(geo)
-    assert d.crs == "geographic (assumed)"
+    with pytest.warns(T.NodataWarning, match="NODATA \\(-9999\\)"):  # the format's default
+        d = T.read_heightmap(geo)
+    assert d.crs == "geographic (assumed)" and d.nodata == 1
     truth = _ground_spacing(36.1 + 10 / 1200, -112.1, 1 / 1200, 1 / 1200)
     np.testing.assert_allclose(d.spacing, truth, rtol=0.01)
+
+
+def _usgs_dem(path, profiles):
+    """A USGS ASCII DEM of 30 m UTM profiles ``[(row offset, elevations)]``, metres."""
+    header = bytearray(b" " * 1024)
+    for (a, b), text in {
+        (156, 162): "1",  # UTM
+        (528, 534): "2",  # ground unit: metres
+        (534, 540): "2",  # elevation unit: metres
+        (816, 828): "0.300000D+02",  # x, y, z resolution
+        (828, 840): "0.300000D+02",
+        (840, 852): "0.100000D+01",
+        (858, 864): str(len(profiles)),
+    }.items():
+        header[a:b] = text.rjust(b - a).encode()
+    body = []
+    for c, (row, elev) in enumerate(profiles):
+        body += ["1", str(c + 1), str(len(elev)), "1", f"{30.0 * c}", f"{30.0 * row}", "0.0"]
+        body += ["0", "0", *(str(e) for e in elev)]
+    path.write_bytes(bytes(header) + " ".join(body).encode())
+
+
+def test_nodata_marked_the_files_own_way_is_filled_counted_and_warned(tmp_path):
+    # USGS DEM: a void (-32767) within a profile; the corners outside the quad (profiles
+    # starting at other rows) are filled too, but they are no voids
+    dem = tmp_path / "quad.dem"
+    _usgs_dem(dem, [(0, [100, 101, 102, 103]), (1, [110, -32767, 112, 113]), (0, [120] * 4)])
+    with pytest.warns(T.NodataWarning, match=r"quad.dem': 1 of 15 samples \(6.67 %\)"):
+        d = T.read_heightmap(dem)
+    assert d.nodata == 1 and d.filled == 4 and d.nodata_value == -32767
+    assert np.all(np.isfinite(d.heights)) and 100 < d.heights[2, 1] < 125  # not -32767 m
+    # GeoTIFF float32: the GDAL_NODATA tag's value in the map's own type, or NaN
+    h = _hills(10, 12, 100.0, 300.0).astype(np.float32)
+    h[4, 5] = np.float32(-9999.9)
+    tif = tmp_path / "float.tif"
+    _write_geotiff(tif, h, geographic=False, scale=(10.0, 10.0), nodata="-9999.9")
+    with pytest.warns(T.NodataWarning, match=r"1 of 120 samples .* NODATA \(-9999.9\)"):
+        d = T.read_heightmap(tif)
+    assert d.nodata == 1 and d.heights.min() >= 99.0
+    h[4, 5] = np.nan
+    _write_geotiff(tif, h, geographic=False, scale=(10.0, 10.0), nodata="nan")
+    with pytest.warns(T.NodataWarning, match=r"1 of 120 samples .* NODATA \(NaN\)"):
+        assert T.read_heightmap(tif).nodata == 1
+    # ESRI ASCII grid without a NODATA_value line: the format's default, -9999
+    h = _hills(6, 8, 300.0, 1300.0)
+    h[2, 3] = -9999
+    asc = tmp_path / "default.asc"
+    rows = "\n".join(" ".join(f"{v:.2f}" for v in row) for row in h)
+    asc.write_text("ncols 8\nnrows 6\nxllcorner 0\nyllcorner 0\ncellsize 25\n" + rows + "\n")
+    with pytest.warns(T.NodataWarning, match="default.asc': 1 of 48 samples"):
+        d = T.read_heightmap(asc)
+    assert d.nodata == 1 and d.nodata_value == -9999 and d.heights.min() >= 299.0
+    # the terrain's mapping carries the count to the CLI's JSON line
+    t = T.heightmap_terrain(d)
+    assert t.mapping.to_dict()["nodata"] == {"count": 1, "fraction": round(1 / 48, 6)}
 
 
 def test_unitless_relief_whatever_the_bit_depth(tmp_path):
@@ -1309,6 +1376,11 @@ def test_cli_terrain_errors(tmp_path, capsys):
     assert "--resolution" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--levels", "0") == 2
     assert "levels" in capsys.readouterr().err
+    # too many levels for the int32 world: one line naming --levels and the most that work
+    assert _terrain_cli(tmp_path, "--levels", "25") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("jaxgfx terrain: error: --levels must be <= 21 with --resolution 16")
     assert _terrain_cli(tmp_path, "--cell", "2") == 2
     assert "--cell applies to --function heightmap" in capsys.readouterr().err
     assert _terrain_cli(tmp_path, "--depth", str(tmp_path / "d.png")) == 2
@@ -1359,18 +1431,35 @@ def test_cli_terrain_geotiff_prints_its_scale(tmp_path, capsys):
     from jaxgfx.cli import main
 
     h = np.round(_hills(20, 24, 700, 1500)).astype(np.int16)
+    h[3, 4] = -32768  # a void: filled, reported in the JSON line and warned about
     path = tmp_path / "dem.tif"
-    _write_geotiff(path, h, geographic=True)
+    _write_geotiff(path, h, geographic=True, nodata=-32768)
     small = ["--resolution", "16", "--levels", "2", "--size", "32x24", "--smoothing", "2"]
     out = ["--out", str(tmp_path / "a.png")]
     assert main(["terrain", *small, "--function", f"heightmap:{path}", *out]) == 0
-    rep = json.loads(capsys.readouterr().out)
+    cap = capsys.readouterr()
+    rep = json.loads(cap.out)
+    assert rep["nodata"] == {"count": 1, "fraction": round(1 / 480, 6)}
+    assert cap.err == (
+        f"jaxgfx terrain: warning: heightmap {str(path)!r}: 1 of 480 samples (0.208 %) are "
+        "NODATA (-32768), filled from their neighbours\n"
+    )
     truth = _ground_spacing(46.5 - 10 / 1200, -122.5, 1 / 1200, 1 / 1200)
     np.testing.assert_allclose(rep["metres_per_sample"], truth, rtol=0.01)
     mpv = rep["metres_per_voxel"]
     np.testing.assert_allclose(mpv, mpv[0], rtol=1e-6)
     assert rep["crs"] == "EPSG:4326" and rep["edge"] == "apron"
     assert rep["cell"][0] == 1.0 and rep["cell"][1] == pytest.approx(truth[1] / truth[0])
+
+
+def test_levels_are_limited_by_the_int32_world_before_any_work():
+    assert T.max_levels(16) == T.max_levels(256) == 21  # levels 0..20
+    assert T.max_levels(1024) == 19  # 2 N 2^L voxels around the viewer fit int32
+    assert T.max_levels(2**28) == 1
+    with pytest.raises(ValueError, match=r"levels must be <= 21 for boxes of size 16.*got 25"):
+        T.ClipBoxPipeline(T.SawTerrain(), size=16, levels=25)
+    with pytest.raises(ValueError, match="levels must be <= 19 for boxes of size 1024"):
+        T.nested_origins(np.zeros(3, np.int64), levels=20, size=1024)
 
 
 def test_subdivision_needs_a_key_and_views_draw_it(pipeline):

@@ -36,6 +36,7 @@ from sphinx.util.docutils import SphinxDirective
 # The modules with an API page, in the order of the reference.
 PUBLIC_MODULES = (
     "camera",
+    "checks",
     "raster",
     "silhouette",
     "compose",

@@ -29,7 +29,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import check_float, check_int, static_field
+from jaxgfx._src.checks import (
+    MAX_PIXELS,
+    check_float,
+    check_int,
+    check_pixels,
+    checking,
+    require_finite,
+    require_values,
+    static_field,
+)
 
 __all__ = [
     "Camera",
@@ -52,6 +61,7 @@ __all__ = [
     "validate_camera",
     "as_float32",
     "frame_points",
+    "MAX_PIXELS",
 ]
 
 
@@ -107,17 +117,26 @@ def as_float32(cam: Camera) -> Camera:
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), cam)
 
 
-def validate_camera(cam: Camera) -> Camera:
+def validate_camera(cam: Camera, *, where: str | None = None) -> Camera:
     """Checks a camera; raises ``TypeError``/``ValueError`` naming the field.
 
-    Types and shapes are checked on abstract values too, so the checks hold inside
-    ``jit``; values (finite, ``fov_y`` in (0, pi), ``0 < near < far``) where they are
-    concrete.  A batched camera (leading axes, :func:`stack_cameras`) is accepted.
+    Types, shapes and the resolution are checked on abstract values too, so the checks
+    hold inside ``jit``; values (finite, ``fov_y`` in (0, pi), ``0 < near < far``) where
+    they are concrete, and for traced cameras inside :func:`jaxgfx.checked` while the
+    program runs.  A batched camera (leading axes, :func:`stack_cameras`) is accepted.
+
+    Args:
+        cam: the camera.
+        where: the function that checks, named in the messages of value checks under
+            :func:`jaxgfx.checked`.
+
+    Raises:
+        TypeError: ``cam`` is no :class:`Camera`, or a field has the wrong type.
+        ValueError: a bad shape or value, or ``width * height`` over :data:`MAX_PIXELS`.
     """
     if not isinstance(cam, Camera):
         raise TypeError(f"cam must be a jaxgfx Camera, got {type(cam).__name__}")
-    check_int("width", cam.width, low=1)
-    check_int("height", cam.height, low=1)
+    check_pixels(cam.width, cam.height)
     pa = cam.pixel_aspect
     if isinstance(pa, bool) or not isinstance(pa, (int, float, np.integer, np.floating)):
         raise TypeError(f"camera pixel_aspect must be a float, got {type(pa).__name__}")
@@ -153,7 +172,24 @@ def validate_camera(cam: Camera) -> Camera:
             raise ValueError(f"camera near must be > 0, got {near}")
         if np.any(far <= near):
             raise ValueError(f"camera far must be > near, got near={near}, far={far}")
+    _require_camera_values(cam, where)
     return cam
+
+
+def _require_camera_values(cam: Camera, where: str | None) -> None:
+    """Under :func:`jaxgfx.checked`: the values :func:`validate_camera` checks when concrete.
+
+    A NaN anywhere in the camera, or a field of no meaning, gives an empty or garbled frame.
+    """
+    if not checking():
+        return
+    for name in _FLOAT_FIELDS:
+        require_finite(f"cam.{name}", getattr(cam, name), where)
+    fov = jnp.asarray(cam.fov_y)
+    require_values("cam.fov_y", (fov > 0) & (fov < math.pi), fov, "{} is outside (0, pi)", where)
+    near, far = jnp.asarray(cam.near), jnp.asarray(cam.far)
+    require_values("cam.near", near > 0, near, "{} must be > 0", where)
+    require_values("cam.far", far > near, far, "{} must be > near", where)
 
 
 def camera_from_degrees(
@@ -180,8 +216,7 @@ def camera_from_degrees(
         near: near plane distance.
         far: far plane distance.
     """
-    width = check_int("width", width, low=1)
-    height = check_int("height", height, low=1)
+    width, height = check_pixels(width, height)
     fov = check_float("fov", fov)
     if not 0.0 < fov < 180.0:
         raise ValueError(f"fov must be in (0, 180) degrees, got {fov}")

@@ -13,7 +13,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxgfx._src.camera import Camera, pixel_rays
+from jaxgfx._src.camera import Camera, pixel_rays, validate_camera
+from jaxgfx._src.checks import checking, require_values
 
 __all__ = [
     "Frame",
@@ -97,6 +98,7 @@ def background(
 
     Pass the same colour three times for a flat background.
     """
+    validate_camera(cam, where="background")  # a NaN view direction would be a NaN sky
     _, d = pixel_rays(cam, normalize=True)
     up = d[..., 1:2]
     hz = jnp.asarray(horizon, jnp.float32)
@@ -156,6 +158,9 @@ def fog(frame: Frame, fog_color=(0.78, 0.86, 0.95), density: float = 0.0) -> Fra
         )
     if isinstance(density, (int, float)) and not density >= 0:  # traced values pass
         raise ValueError(f"density must be >= 0, got {density}")
+    if checking():  # and inside jaxgfx.checked, traced ones too: NaN fogs every pixel
+        d = jnp.asarray(density)
+        require_values("density", (d >= 0) & jnp.isfinite(d), d, "{} must be >= 0", "fog")
     finite = jnp.isfinite(frame.depth)
     z = jnp.where(finite, frame.depth, 0.0)
     k = (1.0 - jnp.exp(-density * z))[..., None]

@@ -85,8 +85,9 @@ def load_mesh(path, up: str = "y"):
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unknown suffix or ``up``, a directory, the file cannot be parsed, or it has
-            no faces (a point cloud is named as one).
+        ValueError: unknown suffix or ``up``, a directory, the file cannot be parsed, it has
+            no faces (a point cloud is named as one), or a binary PLY ends before the
+            vertices and faces its header declares (named as truncated).
     """
     import trimesh
 
@@ -103,9 +104,12 @@ def load_mesh(path, up: str = "y"):
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for broken files
+        _raise_if_truncated(path)
         raise ValueError(f"mesh file {path} is malformed: {type(exc).__name__}: {exc}") from exc
     if not isinstance(loaded, trimesh.Trimesh):
         raise ValueError(f"mesh file {path} holds no triangle mesh (got {type(loaded).__name__})")
+    if len(loaded.faces) == 0 or len(loaded.vertices) == 0:
+        _raise_if_truncated(path)  # trimesh drops the elements a cut file lacks
     if len(loaded.faces) == 0 and _point_count(path):
         raise ValueError(
             f"mesh file {path} holds {_point_count(path)} points and no faces: a point "
@@ -122,6 +126,121 @@ def load_mesh(path, up: str = "y"):
         transform[:3, :3] = rot
         loaded.apply_transform(transform)
     return loaded
+
+
+_PLY_TYPES = {
+    **dict.fromkeys(("char", "int8", "uchar", "uint8"), 1),
+    **dict.fromkeys(("short", "int16", "ushort", "uint16"), 2),
+    **dict.fromkeys(("int", "int32", "uint", "uint32", "float", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+_PLY_COUNT_TYPES = {1: "u1", 2: "u2", 4: "u4"}
+
+
+def _raise_if_truncated(path: Path) -> None:
+    """Raises ``ValueError`` if ``path`` is a binary PLY shorter than its header declares.
+
+    trimesh reports such a file as "unexpected length" or, cut between two elements, reads
+    the elements that are there (vertices without faces), which would be named an empty
+    mesh or a point cloud.  The header says how many rows each element has; the rows of
+    fixed size give the expected length at once, those with lists (faces) are walked.
+    """
+    if path.suffix.lower() != ".ply":
+        return
+    data = path.read_bytes()
+    header = _ply_header(data)
+    if header is None:
+        return
+    fmt, elements, start = header
+    endian = "<" if fmt == "binary_little_endian" else ">"
+    pos, complete = start, []
+    for name, count, props in elements:
+        rows, pos = _ply_rows(data, pos, count, props, endian)
+        complete.append((name, rows, count))
+        if rows < count:
+            break
+    if all(rows == count for _, rows, count in complete) and len(complete) == len(elements):
+        return
+    declared = " and ".join(f"{count} {_plural(name)}" for name, count, _ in elements)
+    found = ", ".join(f"{rows} of {count} {_plural(name)}" for name, rows, count in complete)
+    raise ValueError(
+        f"mesh file {path} is truncated: its header declares {declared}, but the file ends "
+        f"early, after {len(data)} bytes ({found} complete)"
+    )
+
+
+def _plural(name: str) -> str:
+    return {"vertex": "vertices", "face": "faces"}.get(name, f"{name} rows")
+
+
+def _ply_header(data: bytes):
+    """``(format, [(element, count, [(kind, sizes)])], data start)`` of a binary PLY, else None.
+
+    ``kind`` is ``"scalar"`` with ``sizes = item bytes`` or ``"list"`` with
+    ``sizes = (count bytes, item bytes)``.
+    """
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        return None
+    start = data.find(b"\n", end) + 1
+    if start == 0:
+        return None
+    fmt: str | None = None
+    elements: list[tuple[str, int, list]] = []
+    for line in data[:end].decode("ascii", errors="replace").splitlines():
+        words = line.split()
+        try:
+            if words[:1] == ["format"]:
+                fmt = words[1]
+            elif words[:1] == ["element"]:
+                elements.append((words[1], int(words[2]), []))
+            elif words[:2] == ["property", "list"]:
+                elements[-1][2].append(("list", (_PLY_TYPES[words[2]], _PLY_TYPES[words[3]])))
+            elif words[:1] == ["property"]:
+                elements[-1][2].append(("scalar", _PLY_TYPES[words[1]]))
+        except (IndexError, KeyError, ValueError):
+            return None  # a header trimesh refuses for its own reason
+    if fmt not in ("binary_little_endian", "binary_big_endian"):
+        return None
+    return fmt, elements, start
+
+
+def _ply_rows(data: bytes, pos: int, count: int, props, endian: str) -> tuple[int, int]:
+    """How many of ``count`` rows from byte ``pos`` are complete, and the byte after them."""
+    lists = [i for i, (kind, _) in enumerate(props) if kind == "list"]
+    if not lists:
+        size = sum(sizes for _, sizes in props)
+        rows = min(count, (len(data) - pos) // size) if size else count
+        return rows, pos + rows * size
+    if len(lists) == 1:
+        # One list (faces): rows of equal length are the usual case, checked on the counts
+        # without a walk.
+        i = lists[0]
+        n_bytes, item = props[i][1]
+        head = sum(sizes for _, sizes in props[:i])
+        tail = sum(sizes for _, sizes in props[i + 1 :])
+        if pos + head + n_bytes <= len(data):
+            dtype = np.dtype(endian + _PLY_COUNT_TYPES[n_bytes])
+            n = int(np.frombuffer(data, dtype, 1, pos + head)[0])
+            size = head + n_bytes + n * item + tail
+            rows = min(count, (len(data) - pos) // size)
+            at = pos + head + size * np.arange(rows)
+            counts = np.frombuffer(data, np.uint8)[at[:, None] + np.arange(n_bytes)]
+            if np.all(counts == counts[:1]):
+                return rows, pos + rows * size
+    for row in range(count):  # lists of different lengths: walk them
+        for kind, sizes in props:
+            if kind == "scalar":
+                pos += sizes
+                continue
+            n_bytes, item = sizes
+            if pos + n_bytes > len(data):
+                return row, len(data) + 1
+            n = int(np.frombuffer(data, np.dtype(endian + _PLY_COUNT_TYPES[n_bytes]), 1, pos)[0])
+            pos += n_bytes + n * item
+        if pos > len(data):
+            return row, pos
+    return count, pos
 
 
 def _point_count(path: Path) -> int:

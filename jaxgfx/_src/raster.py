@@ -55,7 +55,7 @@ from jaxgfx._src.camera import (
     world_to_camera,
     world_to_camera_soa,
 )
-from jaxgfx._src.checks import check_int
+from jaxgfx._src.checks import check_int, require_finite, require_indices
 from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
 from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.zbuffer import (
@@ -107,18 +107,20 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def validate_mesh(vertices, faces, attributes=None) -> None:
+def validate_mesh(vertices, faces, attributes=None, *, where: str | None = None) -> None:
     """Checks mesh arrays; raises ``ValueError``/``TypeError`` naming the problem.
 
     Shapes and dtypes are checked on abstract values too, so the checks hold inside
     ``jit``; values (finite vertices, face indices in range) are checked where they are
-    concrete.  Under ``jit`` out-of-range face indices are clamped to ``[0, V)``, as JAX
+    concrete, and for traced arrays inside :func:`jaxgfx.checked` while the program runs.
+    Otherwise, under ``jit``, out-of-range face indices are clamped to ``[0, V)``, as JAX
     clamps every gather index.
 
     Args:
         vertices: (V, 3) floats, all finite.
         faces: (F, 3) integers in ``[0, V)``.
         attributes: optional (V, C) per-vertex attributes, all finite.
+        where: the function that checks, named in the messages of :func:`jaxgfx.checked`.
     """
     v_shape, f_shape = np.shape(vertices), np.shape(faces)
     if len(v_shape) != 2 or v_shape[-1] != 3:
@@ -151,6 +153,10 @@ def validate_mesh(vertices, faces, attributes=None) -> None:
                 f"faces index out of range: indices span [{f.min()}, {f.max()}] "
                 f"but there are {v_shape[0]} vertices"
             )
+    require_finite("vertices", vertices, where)
+    require_indices("faces", faces, v_shape[0], "vertices", where)
+    if attributes is not None:
+        require_finite("attributes", attributes, where)
 
 
 def coverage_count(
@@ -253,7 +259,14 @@ def interpolate(attributes: jax.Array, faces: jax.Array, tri_id: jax.Array, bary
         faces: (F, 3) vertex indices.
         tri_id: (...) face per pixel, -1 where empty.
         bary: (..., 3) barycentrics.
+
+    Out-of-range ``faces`` or ``tri_id`` are clamped by the gathers, except inside
+    :func:`jaxgfx.checked`, which raises ``ValueError`` naming them.
     """
+    require_indices("faces", faces, np.shape(attributes)[0], "attribute rows", "interpolate")
+    require_indices(
+        "tri_id", tri_id, np.shape(faces)[0], "faces", "interpolate", allow_minus_one=True
+    )
     fv = _face_corners(faces, jnp.maximum(tri_id, 0).reshape(-1))
     return _interpolate_corners(attributes, fv, tri_id, bary)
 
@@ -330,7 +343,7 @@ def rasterize(
         cam: the shared camera (resolution static).
         vertices: (V, 3) world positions.
         faces: (F, 3) int vertex indices; under ``jit`` out-of-range indices are
-            clamped to ``[0, V)`` (eager calls raise).
+            clamped to ``[0, V)`` (eager calls and :func:`jaxgfx.checked` raise).
         attributes: (V, C) per-vertex attributes (colour, normal, ...);
             default: the world positions.
         cull_backfaces: drop faces that point away from the camera.
@@ -366,9 +379,11 @@ def rasterize(
         the depth falls back to the z-buffer's and its gradient is zero.
 
     Raises:
-        ValueError: bad shapes or static arguments (also inside ``jit``), bad values of
-            concrete inputs.
-        TypeError: bad dtypes or types of static arguments.
+        ValueError / TypeError: bad shapes, dtypes or static arguments (also inside
+            ``jit``), bad values of concrete inputs, and of traced ones inside
+            :func:`jaxgfx.checked`: non-finite vertices, attributes or camera fields,
+            face indices out of range, ``fov_y`` outside (0, pi), ``near <= 0`` or
+            ``far <= near``.
     """
     check_int("block", block, low=1)
     check_int("chunk", chunk, low=1)
@@ -376,8 +391,8 @@ def rasterize(
         raise TypeError(f"cull_backfaces must be a bool, got {type(cull_backfaces).__name__}")
     check_batching(batching)
     split = None if devices is None else resolve_devices(devices)
-    cam = as_float32(validate_camera(cam))
-    validate_mesh(vertices, faces, attributes)
+    cam = as_float32(validate_camera(cam, where="rasterize"))
+    validate_mesh(vertices, faces, attributes, where="rasterize")
     vertices = jnp.asarray(vertices, jnp.float32)
     faces = jnp.clip(jnp.asarray(faces, jnp.int32), 0, max(vertices.shape[0] - 1, 0))
     attributes = vertices if attributes is None else jnp.asarray(attributes, jnp.float32)

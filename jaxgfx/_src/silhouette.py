@@ -84,6 +84,7 @@ from jaxgfx._src.camera import (
     validate_camera,
     world_to_camera,
 )
+from jaxgfx._src.checks import require_finite, require_indices
 from jaxgfx._src.raster import RasterOutput, validate_mesh
 
 __all__ = ["silhouette_edges", "analytic_antialias"]
@@ -449,16 +450,17 @@ def analytic_antialias(
         (H, W, C) antialiased image; pixels away from silhouettes are unchanged.
 
     Raises:
-        ValueError: bad shapes or values of concrete inputs (checked before tracing).
-        TypeError: bad dtypes or types of concrete inputs (checked before tracing).
+        ValueError / TypeError: for bad concrete inputs (checked before tracing), and
+            inside :func:`jaxgfx.checked` for bad traced values too (those of
+            :func:`jaxgfx.raster.rasterize`; face ids, edges, colour, background).
 
     References:
         S. Laine, J. Hellsten, T. Karras, Y. Seol, J. Lehtinen, T. Aila,
         "Modular Primitives for High-Performance Differentiable Rendering",
         ACM TOG 39(6), 2020, Sec. 3.4 (analytic antialiasing).
     """
-    validate_camera(cam)
-    validate_mesh(vertices, faces)
+    validate_camera(cam, where="analytic_antialias")
+    validate_mesh(vertices, faces, where="analytic_antialias")
     topo = silhouette_edges(faces) if edges is None else edges
     image = raster_out.color if color is None else color
     h, w = cam.height, cam.width
@@ -480,6 +482,7 @@ def analytic_antialias(
         raise ValueError(
             f"background must be a scalar or have shape ({cols},), got {np.shape(background)}"
         )
+    _require_inputs(raster_out, image, topo, background, np.shape(faces)[0])
     if faces.shape[0] == 0:
         return color
     bg = (
@@ -534,6 +537,22 @@ def _compiled_antialias(cam, vertices, faces, across, tri, depth, color, bg):
         last[1 - axis], first[1 - axis] = (0, 1), (1, 0)
         out = out + jnp.pad(da.reshape(pair_shape), last) + jnp.pad(db.reshape(pair_shape), first)
     return out
+
+
+def _require_inputs(raster_out, color, edges, background, n_faces: int) -> None:
+    """Under :func:`jaxgfx.checked`: the traced values a wrong blend would come from.
+
+    A face id beyond the faces or an edge beyond the edge table is clamped by the gathers,
+    so a pixel would blend along another face's outline; a NaN colour spreads to its pair.
+    """
+    where = "analytic_antialias"
+    require_indices(
+        "raster_out.tri_id", raster_out.tri_id, n_faces, "faces", where, allow_minus_one=True
+    )
+    require_indices("edges", edges, 3 * n_faces, "face edges", where, allow_minus_one=True)
+    require_finite("color", color, where)
+    if background is not None:
+        require_finite("background", background, where)
 
 
 def _pairs(image, a, b):

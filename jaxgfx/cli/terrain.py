@@ -66,11 +66,18 @@ def check_args(args) -> None:
 
 
 def check_source_args(args) -> None:
-    """Checks the options :func:`add_source_arguments` adds (no JAX): --resolution and the
-    height-map-only flags."""
+    """Checks the options :func:`add_source_arguments` adds (no JAX work): --resolution,
+    --levels and the height-map-only flags."""
     n = args.resolution
     if n < 8 or n % 8:
         raise CliError(f"--resolution must be a multiple of 8 and >= 8, got {n}")
+    from jaxgfx._src.terrain.clipbox import MAX_LEVEL, max_levels
+
+    if args.levels > max_levels(n):
+        raise CliError(
+            f"--levels must be <= {max_levels(n)} with --resolution {n} (levels run 0..{MAX_LEVEL} "
+            f"and the outer box must fit int32 world coordinates), got {args.levels}"
+        )
     if not args.function.startswith("heightmap:"):
         for flag, given in (
             ("--cell", args.cell is not None),
@@ -82,14 +89,30 @@ def check_source_args(args) -> None:
 
 
 def terrain_from_args(args):
-    """:func:`make_terrain` from the options :func:`add_source_arguments` adds."""
-    return make_terrain(
-        args.function,
-        seed=args.seed,
-        vertical_scale=args.vertical_scale,
-        cell=args.cell,
-        wrap=args.wrap,
-    )
+    """:func:`make_terrain` from the options :func:`add_source_arguments` adds.
+
+    A height map's NODATA warning (voids filled) is printed as one line,
+    ``jaxgfx CMD: warning: ...``; the JSON line reports the count and share too.
+    """
+    import warnings
+
+    from jaxgfx.terrain import NodataWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", NodataWarning)
+        terrain = make_terrain(
+            args.function,
+            seed=args.seed,
+            vertical_scale=args.vertical_scale,
+            cell=args.cell,
+            wrap=args.wrap,
+        )
+    for w in caught:
+        if issubclass(w.category, NodataWarning):
+            print(f"jaxgfx {args.command}: warning: {w.message}", file=sys.stderr)
+        else:  # any other warning as Python shows it
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return terrain
 
 
 def make_terrain(

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxgfx._src.checks import checking, require_finite, require_indices, require_values
 from jaxgfx._src.frames import per_frame, split_rows
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _concrete, _normalize, _safe_norm
@@ -99,7 +100,12 @@ def lbs_vertex(
     return pos, nrm * lax.rsqrt(jnp.maximum(jnp.sum(nrm * nrm), _EPS_SQ))
 
 
-def _check_lbs_inputs(transforms, vertices, joints, weights):
+def _check_lbs_inputs(transforms, vertices, normals, joints, weights, where: str):
+    """Shapes always; values where concrete, and traced ones inside :func:`jaxgfx.checked`.
+
+    A NaN transform or weight spreads to every vertex it moves, and an out-of-range joint
+    is clamped to the last bone by the gathers: wrong positions, no error.
+    """
     nj = jnp.shape(transforms)[0]
     if jnp.shape(transforms)[1:] != (3, 4) and jnp.shape(transforms)[1:] != (4, 4):
         raise ValueError(f"transforms must have shape (J, 3, 4), got {jnp.shape(transforms)}")
@@ -110,11 +116,27 @@ def _check_lbs_inputs(transforms, vertices, joints, weights):
             f"with V = {nv} (vertices)"
         )
     j = _concrete(joints)
-    if j is not None and (j.min() < 0 or j.max() >= nj):
+    if j is not None and j.size and (j.min() < 0 or j.max() >= nj):
         raise ValueError(f"joints out of range [0, {nj})")
+    arrays = {"transforms": transforms, "vertices": vertices, "normals": normals}
+    for name, a in {**arrays, "weights": weights}.items():
+        c = _concrete(a)
+        if c is not None and not np.all(np.isfinite(c)):
+            bad = int(np.sum(~np.isfinite(c)))
+            raise ValueError(f"{name}: {bad} of {c.size} values are NaN or infinite")
     w = _concrete(weights)
     if w is not None and (np.any(w < 0) or np.any(np.abs(w.sum(-1) - 1) > 1e-3)):
         raise ValueError("weights must be non-negative and sum to one per vertex")
+    for name, a in arrays.items():
+        require_finite(name, a, where)
+    require_indices("joints", joints, nj, "bones (transforms)", where)
+    require_finite("weights", weights, where)
+    if checking():
+        wj = jnp.asarray(weights)
+        total = jnp.sum(wj, axis=-1)
+        ok = jnp.all(wj >= 0, axis=-1) & (jnp.abs(total - 1) <= 1e-3)
+        rule = "a vertex's weights sum to {} (must be >= 0 and sum to one)"
+        require_values("weights", ok, total, rule, where)
 
 
 def linear_blend_skinning(transforms, vertices, normals, joints, weights):
@@ -133,8 +155,13 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
         normals: (V, 3) bind normals.
         joints: (V, I) int bone indices.
         weights: (V, I) weights, non-negative, summing to one per vertex.
+
+    Raises:
+        ValueError: bad shapes; non-finite arrays, joints out of range or weights that are
+            negative or do not sum to one, where concrete (eager calls) and, for traced
+            arrays, inside :func:`jaxgfx.checked`.
     """
-    _check_lbs_inputs(transforms, vertices, joints, weights)
+    _check_lbs_inputs(transforms, vertices, normals, joints, weights, "linear_blend_skinning")
     return _LBS(transforms, vertices, normals, joints, weights)
 
 
@@ -278,8 +305,11 @@ def dual_quaternion_skinning(transforms, vertices, normals, joints, weights):
     Args:
         transforms, vertices, normals, joints, weights: as :func:`linear_blend_skinning`;
             the transforms must be rigid.
+
+    Raises:
+        ValueError: as :func:`linear_blend_skinning`.
     """
-    _check_lbs_inputs(transforms, vertices, joints, weights)
+    _check_lbs_inputs(transforms, vertices, normals, joints, weights, "dual_quaternion_skinning")
     return _DQS(transforms, vertices, normals, joints, weights)
 
 

@@ -18,11 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxgfx._src.checks import check_int
+from jaxgfx._src.checks import check_int, checking, require_finite, require_indices
 from jaxgfx._src.skin.rig import SplineRig
 from jaxgfx._src.skin.spline import frame_inverse, spline_frame, spline_point, spline_tangent
 
-__all__ = ["SkinBinding", "bind_vertex", "bind_mesh", "brute_force_binding"]
+__all__ = ["SkinBinding", "bind_vertex", "bind_mesh", "brute_force_binding", "require_binding"]
 
 # A vertex follows at most this many splines.
 _MAX_INFLUENCES = 3
@@ -225,3 +225,16 @@ def brute_force_binding(
     for i, v in enumerate(np.asarray(vertices, np.float64)):
         out[i] = xs[np.argmin(np.sum((curve - v) ** 2, axis=1))]
     return out
+
+
+def require_binding(binding: SkinBinding, num_splines: int, where: str | None = None) -> None:
+    """Inside :func:`jaxgfx.checked`: the binding's values a skinned mesh would go wrong from.
+
+    A spline index out of range is clamped by the gathers (the vertex follows another
+    spline), a NaN weight or coordinate moves its vertex to NaN.
+    """
+    if not checking():
+        return
+    require_indices("binding.spline", binding.spline, num_splines, "splines", where)
+    for name in ("weight", "x", "local", "local_normal", "rest", "rest_normal"):
+        require_finite(f"binding.{name}", getattr(binding, name), where)

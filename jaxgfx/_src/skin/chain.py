@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import static_field
+from jaxgfx._src.checks import require_finite, static_field
 from jaxgfx._src.skin.binding import SkinBinding, bind_mesh
 from jaxgfx._src.skin.geometry import _normalize
 from jaxgfx._src.skin.gltf import GltfSkin, joint_globals, joint_matrices, sample_animation
@@ -208,7 +208,8 @@ def skin_gltf_chain(
         Positions (V, 3) and unit normals (V, 3), float32, in the glTF scene's world space.
 
     Raises:
-        ValueError: ``pose`` arrays have the wrong shapes, or ``style`` is malformed.
+        ValueError: ``pose`` arrays have the wrong shapes, or ``style`` is malformed; inside
+            :func:`jaxgfx.checked` also non-finite traced pose or style values.
     """
     mats = jnp.asarray(pose.matrices, jnp.float32)
     pts = jnp.asarray(pose.points, jnp.float32)
@@ -219,8 +220,11 @@ def skin_gltf_chain(
         raise ValueError(
             f"pose.points and pose.rotation must be (3, 3), got {pts.shape}, {rot.shape}"
         )
+    where = "skin_gltf_chain"
+    for name, a in (("pose.matrices", mats), ("pose.points", pts), ("pose.rotation", rot)):
+        require_finite(name, a, where)
     if style is not None:
-        _check_style(style)
+        _check_style(style, where)
     styles = "none" if style is None else "both"
     rig, b = chain.rig, chain.binding
     spose = SplinePose(points=pts[None], stiffness=rig.bind.stiffness, twist=jnp.zeros(1))

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import static_field
+from jaxgfx._src.checks import checking, require_finite, require_values, static_field
 from jaxgfx._src.skin.geometry import _concrete
 
 __all__ = [
@@ -96,10 +96,12 @@ def _check_stiffness(stiffness: np.ndarray, k: int, name: str) -> None:
         raise ValueError(f"{name} must be finite and >= 2 (Eq. 5.3), got {stiffness}")
 
 
-def validate_pose(rig: SplineRig, pose: SplinePose) -> None:
+def validate_pose(rig: SplineRig, pose: SplinePose, *, where: str | None = None) -> None:
     """Raise ``ValueError`` naming the field if a concrete pose is malformed.
 
-    Traced poses (inside ``jit``) are only shape-checked.
+    Traced poses (inside ``jit``) are only shape-checked, unless inside
+    :func:`jaxgfx.checked`, where their values are checked while the program runs
+    (``where`` names the checking function in those messages).
     """
     k = rig.num_splines
     if tuple(jnp.shape(pose.points)) != (k, 3, 3):
@@ -116,6 +118,12 @@ def validate_pose(rig: SplineRig, pose: SplinePose) -> None:
     tw = _concrete(pose.twist)
     if tw is not None and not np.all(np.isfinite(tw)):
         raise ValueError("pose.twist must be finite")
+    if checking():
+        require_finite("pose.points", pose.points, where)
+        require_finite("pose.twist", pose.twist, where)
+        stiff = jnp.asarray(pose.stiffness)
+        rule = "{} must be finite and >= 2 (Eq. 5.3)"
+        require_values("pose.stiffness", stiff >= 2.0, stiff, rule, where)
 
 
 def make_rig(

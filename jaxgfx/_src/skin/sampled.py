@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxgfx._src.checks import check_int
+from jaxgfx._src.checks import check_int, checking, require_finite, require_values
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _compose
 from jaxgfx._src.skin.kernels import (
@@ -238,7 +238,7 @@ def skin_sampled(
         Positions (V, 3) and unit normals (V, 3).
     """
     _check_pass2(binding, style, styles)
-    validate_pose(rig, pose)
+    validate_pose(rig, pose, where="skin_sampled")
     pose = jax.tree_util.tree_map(jnp.asarray, pose)
     skinning, style_table = sample_spline_frames(rig, pose, samples)
     return skin_sampled_tables(
@@ -253,6 +253,30 @@ def _check_pass2(binding, style, styles: str) -> tuple[bool, bool]:
     if not isinstance(binding, SampledBinding):
         raise TypeError("binding must be a SampledBinding (use prepare_sampled)")
     return radial, rect
+
+
+def _require_pass2(skinning, style_table, binding: SampledBinding, styled: bool) -> None:
+    """Inside :func:`jaxgfx.checked`: the values pass 2 would turn into wrong vertices.
+
+    A table coordinate outside the table is clamped by the gathers (the vertex follows
+    another spline's end), a NaN row, weight or bind position moves its vertices to NaN.
+    """
+    if not checking():
+        return
+    where = "skin_sampled_tables"
+    rows = skinning.shape[0]
+    require_finite("skinning", skinning, where)
+    if styled:
+        require_finite("style_table", style_table, where)
+    for name in ("coord", "dominant_coord"):
+        u = jnp.asarray(getattr(binding, name))
+        rule = f"{{}} is outside the table's rows [0, {rows - 1}]"
+        require_values(f"binding.{name}", (u >= 0) & (u <= rows - 1), u, rule, where)
+    for name in ("weight", "rest", "rest_normal", "dominant_weight"):
+        require_finite(f"binding.{name}", getattr(binding, name), where)
+    if styled:
+        for name in ("dominant_local", "dominant_local_normal"):
+            require_finite(f"binding.{name}", getattr(binding, name), where)
 
 
 def skin_sampled_tables(
@@ -306,6 +330,7 @@ def skin_sampled_tables(
         raise ValueError(
             f"style_table must have shape ({skinning.shape[0]}, 20), got {style_table.shape}"
         )
+    _require_pass2(skinning, style_table, binding, radial or rect)
     # skin_vertex_sampled over the vertices, in the structure-of-arrays kernel (kernels.py)
     coord = jnp.asarray(binding.coord).T
     weight = jnp.asarray(binding.weight).T
@@ -313,7 +338,7 @@ def skin_sampled_tables(
     if radial or rect:
         assert style is not None  # _check_pass2
         style = jax.tree_util.tree_map(jnp.asarray, style)
-        _check_style(style)
+        _check_style(style, "skin_sampled_tables")
     dom = (
         jnp.asarray(binding.dominant_coord),
         jnp.asarray(binding.dominant_weight),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxgfx._src.skin.binding import SkinBinding
+from jaxgfx._src.skin.binding import SkinBinding, require_binding
 from jaxgfx._src.skin.geometry import _normalize
 from jaxgfx._src.skin.rig import SplinePose, SplineRig, validate_pose
 from jaxgfx._src.skin.spline import spline_frame, start_normal
@@ -80,15 +80,22 @@ def skin_exact(
     styles: str = "none",
     dominant_only: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
-    """Exact spline skinning of a whole mesh: vmap of :func:`skin_vertex_exact`; (V,3), (V,3)."""
+    """Exact spline skinning of a whole mesh: vmap of :func:`skin_vertex_exact`; (V,3), (V,3).
+
+    Raises:
+        ValueError: a malformed pose or style, and inside :func:`jaxgfx.checked` also
+            non-finite traced pose, style or binding values and spline indices out of range.
+    """
     _style_flags(styles)
     if styles != "none" and style is None:
         raise ValueError("style is required when styles != 'none'")
-    validate_pose(rig, pose)
+    where = "skin_exact"
+    validate_pose(rig, pose, where=where)
+    require_binding(binding, rig.num_splines, where)
     pose = jax.tree_util.tree_map(jnp.asarray, pose)
     style = None if style is None else jax.tree_util.tree_map(jnp.asarray, style)
     if style is not None:
-        _check_style(style)
+        _check_style(style, where)
     n0 = jax.vmap(start_normal)(rig.bind.points, rig.reference_normal, pose.points)
     fn = lambda s, w, x, v, n: skin_vertex_exact(  # noqa: E731
         pose, n0, s, w, x, v, n, style, styles=styles, dominant_only=dominant_only

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxgfx._src.checks import require_finite
 from jaxgfx._src.skin.geometry import _EPS_SQ
 from jaxgfx._src.skin.spline import bend_angle
 
@@ -87,13 +88,16 @@ def make_style(textures, curves, hollow=0.0) -> Style:
     return Style(textures=jnp.asarray(t), curves=jnp.asarray(c), hollow=jnp.float32(hollow))
 
 
-def _check_style(style: Style) -> None:
-    """Shape checks that work on traced styles too (values are checked by make_style)."""
+def _check_style(style: Style, where: str | None = None) -> None:
+    """Shape checks that work on traced styles too (values are checked by make_style, and
+    traced ones inside :func:`jaxgfx.checked`: a NaN texel spreads over its vertices)."""
     t, c = jnp.shape(style.textures), jnp.shape(style.curves)
     if len(t) != 3 or t[0] != 3 or t[1] < 2 or t[2] < 2:
         raise ValueError(f"style.textures must have shape (3, A, X) with A, X >= 2, got {t}")
     if len(c) != 2 or c[0] != 3 or c[1] < 2:
         raise ValueError(f"style.curves must have shape (3, X) with X >= 2, got {c}")
+    require_finite("style.textures", style.textures, where)
+    require_finite("style.curves", style.curves, where)
 
 
 def identity_style(texture_shape: tuple[int, int] = (64, 32), curve_size: int = 32) -> Style:

@@ -30,6 +30,9 @@ __all__ = [
     "slab_thickness",
     "shift_clipbox",
     "reused_fraction",
+    "MAX_LEVEL",
+    "max_levels",
+    "check_levels",
 ]
 
 
@@ -67,8 +70,47 @@ def _check_size(size) -> int:
     return size
 
 
+MAX_LEVEL = 20
+"""The coarsest Clip-Box level: voxels of edge ``2^20``."""
+
+
 def _check_level(level) -> int:
-    return check_int("level", level, low=0, high=20)
+    return check_int("level", level, low=0, high=MAX_LEVEL)
+
+
+def max_levels(size: int) -> int:
+    """The most nested levels ``L`` that boxes of ``size`` (N) voxels per edge can have.
+
+    Levels run from 0 to :data:`MAX_LEVEL`, and the boxes' world coordinates are int32:
+    the viewer's neighbourhood of ``2 N 2^L`` voxels (where the outer box, ``N 2^(L-1)``
+    wide, can move to) must fit in ``[-(2^31 - 1), 2^31 - 1]``; N = 64 allows 21 levels,
+    N = 1024 allows 19.
+
+    Raises:
+        ValueError / TypeError: ``size`` is not a multiple of 8 >= 8.
+    """
+    size = _check_size(size)
+    levels = MAX_LEVEL + 1
+    while levels > 1 and _reach(size, levels) > 2**31 - 1:
+        levels -= 1
+    return levels
+
+
+def _reach(size: int, levels: int) -> int:
+    """Voxels around the viewer that ``levels`` boxes of ``size`` need in int32: ``2 N 2^L``."""
+    return 2 * size * (1 << levels)
+
+
+def check_levels(levels, size: int) -> int:
+    """``levels`` as an int in ``[1, max_levels(size)]``; raises naming ``levels`` otherwise."""
+    levels = check_int("levels", levels, low=1)
+    most = max_levels(size)
+    if levels > most:
+        raise ValueError(
+            f"levels must be <= {most} for boxes of size {size} (levels run 0..{MAX_LEVEL} and "
+            f"the outer box must fit int32 world coordinates), got {levels}"
+        )
+    return levels
 
 
 def clipbox_origin(viewer, level: int, size: int) -> np.ndarray:
@@ -137,7 +179,7 @@ class NestedClipBoxes:
 
 def nested_origins(viewer, *, levels: int, size: int) -> np.ndarray:
     """(L, 3) origins of boxes centred on ``viewer`` (host side, Fig. 3.10)."""
-    levels = check_int("levels", levels, low=1)
+    levels = check_levels(levels, size)
     return np.stack([clipbox_origin(viewer, lvl, size) for lvl in range(levels)])
 
 

@@ -32,8 +32,16 @@ Formats (chosen by the file name's suffix):
 Geographic spacings become metres at the map's centre latitude, per axis, on the
 WGS 84 ellipsoid: a degree of latitude is the meridian's radius of curvature
 ``M(phi) pi / 180``, a degree of longitude ``N(phi) cos(phi) pi / 180`` (3 arc-seconds
-are 74.6 m east-west by 92.5 m north-south at 36.6 N).  Samples marked NODATA (or
-NaN) are filled from their known neighbours, ring by ring (:func:`_fill_outside`).
+are 74.6 m east-west by 92.5 m north-south at 36.6 N).
+
+NODATA: every format marks its voids in its own way, and the file's own marker is read:
+a GeoTIFF's GDAL_NODATA tag (42113, e.g. ``-32768`` or ``nan``; NaN samples always), an
+SRTM tile's -32768, an ASCII grid's ``NODATA_value`` (-9999 when the header has none, as
+the format defines), a USGS DEM's -32767 (its profiles' void value).  Voids are filled
+from their known neighbours, ring by ring (:func:`_fill_outside`), as are a USGS DEM's
+grid corners outside its quad (no samples, not voids); :class:`HeightmapData` counts both,
+and :func:`read_heightmap` warns (:class:`NodataWarning`) with the count and the share of
+the map when a file has voids.
 """
 
 from __future__ import annotations
@@ -41,16 +49,29 @@ from __future__ import annotations
 import math
 import os
 import re
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["HeightmapData", "read_heightmap", "load_heightmap", "metres_per_degree"]
+__all__ = [
+    "HeightmapData",
+    "NodataWarning",
+    "read_heightmap",
+    "load_heightmap",
+    "metres_per_degree",
+]
 
 _METRES_PER_FOOT = 0.3048
 _METRES_PER_US_SURVEY_FOOT = 1200.0 / 3937.0
 _METRES_PER_ARC_SECOND = 30.87
 """One arc-second of latitude (USGS DEM headers give geographic spacing in arc-seconds)."""
+_DEM_VOID = -32767
+"""A USGS DEM profile's void elevation (as GDAL's USGSDEM driver reads it)."""
+_HGT_VOID = -32768
+"""An SRTM tile's void."""
+_ASC_NODATA = -9999.0
+"""An ESRI ASCII grid's NODATA value when its header gives none (the format's default)."""
 _WGS84_A = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
 # EPSG linear and angular unit codes of GeoTIFF's GeoKeys
@@ -71,7 +92,11 @@ class HeightmapData(NamedTuple):
         height_unit: metres per height unit (1.0 for metres, 0.3048 for feet), or None.
         crs: what the file says its grid is in, e.g. ``"EPSG:4326"``, ``"EPSG:32610"``,
             ``"geographic (assumed)"``; None for files without units.
-        filled: number of NODATA samples filled from their neighbours.
+        filled: number of samples filled from their neighbours: the NODATA voids and, in
+            a USGS DEM, the grid's corners outside the quad.
+        nodata: number of those the file marks NODATA (voids; NaN samples included).
+        nodata_value: the file's NODATA marker (NaN for a GeoTIFF whose tag says ``nan``),
+            None for files without one (images, arrays, a GeoTIFF without the tag).
     """
 
     heights: np.ndarray
@@ -79,6 +104,16 @@ class HeightmapData(NamedTuple):
     height_unit: float | None
     crs: str | None = None
     filled: int = 0
+    nodata: int = 0
+    nodata_value: float | None = None
+
+
+class NodataWarning(UserWarning):
+    """An elevation file has NODATA voids; :func:`read_heightmap` filled them.
+
+    The message names the file, the number of voids and their share of the map.  Filter it
+    as any warning: ``warnings.simplefilter("ignore", NodataWarning)``.
+    """
 
 
 def metres_per_degree(latitude: float) -> tuple[float, float]:
@@ -114,12 +149,31 @@ def _fill_outside(grid: np.ndarray) -> np.ndarray:
     return grid
 
 
+def _nodata_mask(arr: np.ndarray, nodata: float | None) -> np.ndarray:
+    """Where ``arr`` holds the NODATA marker ``nodata`` or is not finite.
+
+    The marker is compared in the array's own type: a float32 map marked ``-9999.9`` holds
+    the float32 nearest to it, not the float64, and an integer map matches only an
+    integer marker within its range.
+    """
+    a = np.asarray(arr)
+    missing = ~np.isfinite(a) if np.issubdtype(a.dtype, np.floating) else np.zeros(a.shape, bool)
+    if nodata is None or not math.isfinite(nodata):
+        return missing
+    if np.issubdtype(a.dtype, np.integer):
+        info = np.iinfo(a.dtype)
+        if nodata != int(nodata) or not info.min <= nodata <= info.max:
+            return missing
+        return missing | (a == int(nodata))
+    if np.issubdtype(a.dtype, np.floating):
+        return missing | (a == np.asarray(nodata).astype(a.dtype))
+    return missing | (a == nodata)
+
+
 def _with_nodata(arr: np.ndarray, nodata: float | None, path: str) -> tuple[np.ndarray, int]:
     """float64 ``arr`` with NODATA (and NaN) samples filled; (heights, number filled)."""
+    missing = _nodata_mask(arr, nodata)
     h = np.asarray(arr, np.float64)
-    missing = ~np.isfinite(h)
-    if nodata is not None and math.isfinite(nodata):
-        missing |= h == nodata
     if missing.all():
         raise ValueError(f"heightmap {path!r} has no valid samples (all NODATA)")
     if not missing.any():
@@ -164,7 +218,8 @@ def _parse_usgs_dem(data: bytes, path: str) -> HeightmapData:
             elev = np.asarray(tokens[pos + 9 : pos + 9 + m], dtype=np.float64)
             if elev.size != m:
                 raise ValueError("truncated profile")
-            profiles.append((y0, datum + elev * (dz if dz > 0 else 1.0)))
+            scaled = datum + elev * (dz if dz > 0 else 1.0)
+            profiles.append((y0, np.where(elev == _DEM_VOID, np.nan, scaled)))
             pos += 9 + m
     except (ValueError, IndexError, UnicodeDecodeError) as err:
         raise ValueError(f"heightmap {path!r} is not a readable USGS ASCII DEM: {err}") from None
@@ -176,7 +231,10 @@ def _parse_usgs_dem(data: bytes, path: str) -> HeightmapData:
     for c, (y0, elev) in enumerate(profiles):
         r = int(round((y0 - y_lo) / dy))
         grid[r : r + elev.size, c] = elev
+    voids = sum(int(np.isnan(p[1]).sum()) for p in profiles)
     filled = int(np.isnan(grid).sum())
+    if filled == grid.size:
+        raise ValueError(f"heightmap {path!r} has no valid samples (all NODATA)")
     grid = _fill_outside(grid)
     ground_unit = _header_int(header, 528, 534)
     ground = {1: _METRES_PER_FOOT, 2: 1.0}.get(ground_unit or -1)
@@ -191,7 +249,8 @@ def _parse_usgs_dem(data: bytes, path: str) -> HeightmapData:
     unit = {1: _METRES_PER_FOOT, 2: 1.0}.get(_header_int(header, 534, 540) or -1)
     crs = {1: "UTM", 2: "State Plane"}.get(_header_int(header, 156, 162) or -1)
     # north at row 0, like an image
-    return HeightmapData(grid[::-1], spacing, unit, crs or "USGS DEM", filled)
+    nodata = float(_DEM_VOID)
+    return HeightmapData(grid[::-1], spacing, unit, crs or "USGS DEM", filled, voids, nodata)
 
 
 # --------------------------------------------------------------------------------------
@@ -301,7 +360,8 @@ def _read_geotiff(path: str) -> HeightmapData | None:
     heights, filled = _with_nodata(arr, nodata, path)
     if not north_up:
         heights = heights[::-1]
-    return HeightmapData(heights, (float(spacing[0]), float(spacing[1])), height_unit, crs, filled)
+    mx, mz = float(spacing[0]), float(spacing[1])
+    return HeightmapData(heights, (mx, mz), height_unit, crs, filled, filled, nodata)
 
 
 # --------------------------------------------------------------------------------------
@@ -331,8 +391,9 @@ def _read_hgt(path: str) -> HeightmapData:
     arr = np.fromfile(path, dtype=">i2").reshape(n, n)
     mx, mz = metres_per_degree(lat0 + 0.5)
     step = 1.0 / (n - 1)  # the tile's edges are shared with its neighbours
-    heights, filled = _with_nodata(arr, -32768.0, path)
-    return HeightmapData(heights, (step * mx, step * mz), 1.0, "EPSG:4326", filled)
+    heights, filled = _with_nodata(arr, _HGT_VOID, path)
+    spacing = (step * mx, step * mz)
+    return HeightmapData(heights, spacing, 1.0, "EPSG:4326", filled, filled, float(_HGT_VOID))
 
 
 def _asc_crs(path: str) -> tuple[str, float] | None:
@@ -399,14 +460,15 @@ def _read_asc(path: str) -> HeightmapData:
             and y0 + rows * dy <= 90
         )
         crs = ("geographic (assumed)", -1.0) if geographic else ("projected (assumed metres)", 1.0)
-    heights, filled = _with_nodata(values.reshape(rows, cols), header.get("nodata_value"), path)
+    nodata = header.get("nodata_value", _ASC_NODATA)
+    heights, filled = _with_nodata(values.reshape(rows, cols), nodata, path)
     if crs[1] < 0:
         lat = (y0 or 0.0) + rows * dy / 2
         mx, mz = metres_per_degree(lat)
         spacing = (dx * mx, dy * mz)
     else:
         spacing = (dx * crs[1], dy * crs[1])
-    return HeightmapData(heights, spacing, 1.0, crs[0], filled)
+    return HeightmapData(heights, spacing, 1.0, crs[0], filled, filled, nodata)
 
 
 # --------------------------------------------------------------------------------------
@@ -432,8 +494,10 @@ def read_heightmap(path: str | os.PathLike) -> HeightmapData:
     GeoTIFF (``.tif``, ``.tiff``), SRTM ``.hgt``, ESRI ASCII ``.asc`` and USGS ``.dem``
     give their sample spacing in metres (geographic spacings converted at the map's
     latitude) and their height unit; images and ``.npy``/``.npz`` arrays give neither
-    (``spacing`` and ``height_unit`` are None).  NODATA samples are filled from their
-    neighbours.
+    (``spacing`` and ``height_unit`` are None).  NODATA samples (the file's own marker,
+    see the module docstring) are filled from their neighbours, counted in ``nodata`` and
+    ``filled``, and reported by a :class:`NodataWarning` naming the file, the count and
+    their share of the map.
 
     Returns:
         :class:`HeightmapData` with (H, W) float64 ``heights``, row 0 north.
@@ -448,6 +512,24 @@ def read_heightmap(path: str | os.PathLike) -> HeightmapData:
         raise ValueError(f"heightmap path {path!r} is a directory, not an elevation file or image")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"heightmap path {path!r} does not exist")
+    data = _read_elevation(path)
+    if data is None:
+        return HeightmapData(_read_array(path), None, None)
+    if data.nodata:
+        n, value = data.heights.size, data.nodata_value
+        marker = "NaN" if value is None or math.isnan(value) else f"{value:g}"
+        warnings.warn(
+            NodataWarning(
+                f"heightmap {path!r}: {data.nodata} of {n} samples ({100 * data.nodata / n:.3g} "
+                f"%) are NODATA ({marker}), filled from their neighbours"
+            ),
+            stacklevel=2,
+        )
+    return data
+
+
+def _read_elevation(path: str) -> HeightmapData | None:
+    """An elevation file's data by its suffix; None for images and arrays."""
     lower = path.lower()
     if lower.endswith(".dem"):
         with open(path, "rb") as fh:
@@ -457,9 +539,13 @@ def read_heightmap(path: str | os.PathLike) -> HeightmapData:
     if lower.endswith(".asc"):
         return _read_asc(path)
     if lower.endswith((".tif", ".tiff")):
-        geo = _read_geotiff(path)
-        if geo is not None:
-            return geo
+        return _read_geotiff(path)
+    return None
+
+
+def _read_array(path: str) -> np.ndarray:
+    """The (H, W) float64 values of an image or a ``.npy``/``.npz`` array (no units)."""
+    lower = path.lower()
     if lower.endswith((".npy", ".npz")):
         try:
             arr = np.load(path)
@@ -476,7 +562,7 @@ def read_heightmap(path: str | os.PathLike) -> HeightmapData:
         raise ValueError(f"heightmap {path!r} must be 2-D, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"heightmap {path!r} contains non-finite values")
-    return HeightmapData(arr, None, None)
+    return arr
 
 
 def load_heightmap(path: str | os.PathLike) -> np.ndarray:

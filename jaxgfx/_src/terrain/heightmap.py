@@ -103,6 +103,7 @@ class HeightmapMapping:
         metres_per_sample: (x, z) metres between samples, when the file says.
         height_unit: metres per height unit, when the file says.
         crs: the file's grid, e.g. ``"EPSG:4326"``, when it says.
+        nodata: samples the file marked NODATA (voids), filled from their neighbours.
     """
 
     origin: tuple[float, float]
@@ -118,6 +119,7 @@ class HeightmapMapping:
     metres_per_sample: tuple[float, float] | None = None
     height_unit: float | None = None
     crs: str | None = None
+    nodata: int = 0
 
     @property
     def cells(self) -> tuple[float, float]:
@@ -137,8 +139,9 @@ class HeightmapMapping:
         """JSON-able mapping: ``origin``, ``cell`` [x, z], ``vertical_scale``, ``base``,
         ``shape``; ``edge`` (``"apron"`` with ``apron``'s world y and fade, or
         ``"wrap"``); the scale: ``metres_per_sample`` [x, z] read from the file and
-        ``metres_per_voxel`` [x, y, z] of the terrain built (None without units), and
-        the file's ``crs``."""
+        ``metres_per_voxel`` [x, y, z] of the terrain built (None without units), the
+        file's ``crs``, and ``nodata``: ``count``, the samples the file marked NODATA (filled
+        from their neighbours), and ``fraction``, their share of the map."""
 
         def r(v):
             return None if v is None else [round(float(a), 6) for a in v]
@@ -159,6 +162,8 @@ class HeightmapMapping:
         out["metres_per_sample"] = r(self.metres_per_sample)
         out["metres_per_voxel"] = r(self.metres_per_voxel)
         out["crs"] = self.crs
+        total = int(self.shape[0]) * int(self.shape[1])
+        out["nodata"] = {"count": int(self.nodata), "fraction": round(self.nodata / total, 6)}
         return out
 
     def sample_position(self, rows, cols, values) -> np.ndarray:
@@ -452,6 +457,7 @@ def heightmap_terrain(
         metres_per_sample=(mx, mz) if units else None,
         height_unit=float(data.height_unit) if units else None,  # type: ignore[arg-type]
         crs=data.crs,
+        nodata=int(data.nodata),
     )
     return HeightmapTerrain(heights=jnp.asarray(rel, _F32), mapping=mapping)
 

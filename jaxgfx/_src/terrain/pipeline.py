@@ -20,6 +20,8 @@ from jaxgfx._src.terrain.clipbox import (
     ClipBox,
     NestedClipBoxes,
     _check_size,
+    _reach,
+    check_levels,
     clipbox_origin,
     is_nested,
     nested_origins,
@@ -74,7 +76,8 @@ class ClipBoxPipeline:
     Args:
         terrain: a terrain (validated with :func:`check_terrain`).
         size: N, voxels per box edge, a multiple of 8.
-        levels: L >= 1 nested boxes.
+        levels: L nested boxes, ``1 <= L <=`` :func:`~jaxgfx.terrain.max_levels` of ``size``
+            (21 up to N = 256); more raise ``ValueError`` here, before any work.
         max_quads: initial quad capacity per box (default ``2 N^2``); a level's
             capacity (``capacity[level]``) grows to the next power of two >= twice
             the old one and the box is rebuilt whenever it has more (never truncated).
@@ -116,7 +119,7 @@ class ClipBoxPipeline:
         self.detail_amplitude = float(detail_amplitude)
         self.key = key
         self.size = _check_size(size)
-        self.levels = check_int("levels", levels, low=1)
+        self.levels = check_levels(levels, self.size)
         self.max_quads = int(max_quads) if max_quads is not None else 2 * self.size**2
         if self.max_quads < 1:
             raise ValueError(f"max_quads must be >= 1, got {max_quads}")
@@ -156,9 +159,12 @@ class ClipBoxPipeline:
         v = np.asarray(viewer)
         if v.shape != (3,) or not np.issubdtype(v.dtype, np.integer):
             raise ValueError(f"viewer must be 3 integer voxel coordinates, got {viewer!r}")
-        reach = self.size * (1 << self.levels)
-        if np.any(np.abs(v.astype(np.int64)) > 2**31 - 1 - 2 * reach):
-            raise ValueError(f"viewer {viewer!r} is outside the int32 world")
+        limit = 2**31 - 1 - _reach(self.size, self.levels)
+        if np.any(np.abs(v.astype(np.int64)) > limit):
+            raise ValueError(
+                f"viewer {viewer!r} is outside the int32 world: with {self.levels} levels of "
+                f"size {self.size} its coordinates must be within +-{limit}"
+            )
         return v.astype(np.int64)
 
     def build_mesh(self, box: ClipBox, *, seam: bool, timings: dict | None = None):

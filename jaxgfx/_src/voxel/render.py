@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, as_float32, focal_lengths, pixel_rays, validate_camera
-from jaxgfx._src.checks import check_float
+from jaxgfx._src.checks import check_float, checking, require_values
 from jaxgfx._src.frames import per_frame
 from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.voxel.codec import HALF_LIMIT, IZ_BITS, unpack_element
@@ -178,7 +178,8 @@ def render_rle(
         raise TypeError(f"settings must be a RenderSettings, got {type(s).__name__}")
     if not isinstance(rle, RLEVolume):
         raise TypeError(f"rle must be an RLEVolume (from encode_rle), got {type(rle).__name__}")
-    validate_camera(cam)
+    validate_camera(cam, where="render_rle")
+    _check_lod_distance(lod_distance)
     if max(cam.width, cam.height) >= HALF_LIMIT:
         raise ValueError(f"camera size {cam.width}x{cam.height} too large: rows must be < 32768")
     if rle.shape[1] >= HALF_LIMIT or rle.shape[2] >= 1 << IZ_BITS:
@@ -204,6 +205,23 @@ def _compiled_frame(s: RenderSettings, rle, cam: Camera, lod) -> RenderOutput:
     fixed = jax.tree_util.tree_map(jax.lax.stop_gradient, cam)
     out = _frame_kernel(s)(rle, fixed, jax.lax.stop_gradient(lod))
     return out._replace(depth=_differentiable_depth(cam, out.depth))
+
+
+def _check_lod_distance(lod_distance) -> None:
+    """``lod_distance`` must be > 0 (``inf``: level 0 only): the mip levels and the planes'
+    spacing are derived from it, and NaN or a distance <= 0 gives them no meaning.
+
+    Concrete values are checked now, traced ones inside :func:`jaxgfx.checked`.
+    """
+    if np.ndim(lod_distance) != 0:
+        raise ValueError(f"lod_distance must be a scalar, got shape {np.shape(lod_distance)}")
+    if not isinstance(lod_distance, jax.core.Tracer):
+        if not float(lod_distance) > 0:
+            raise ValueError(f"lod_distance must be > 0 (inf: level 0 only), got {lod_distance}")
+        return
+    if checking():
+        d = jnp.asarray(lod_distance)
+        require_values("lod_distance", d > 0, d, "{} must be > 0", "render_rle")
 
 
 def _differentiable_depth(cam: Camera, depth):
