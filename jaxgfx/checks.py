@@ -2,9 +2,9 @@
 
 Every kernel checks shapes and types while tracing, and values where they are concrete
 (eager calls).  :func:`checked` wraps a function so that the kernels it calls check the
-values of traced arguments too while the program runs (``jax.experimental.checkify``),
-raising ``ValueError`` naming the argument; without it no check is compiled.
-Implementation: ``jaxgfx/_src/checks.py``.
+values of traced arguments too while the program runs (each check a host callback, as
+``equinox.error_if`` does), raising ``ValueError`` naming the argument; without it no
+check is compiled.
 """
 
 from __future__ import annotations

@@ -122,13 +122,13 @@ def validate_camera(cam: Camera, *, where: str | None = None) -> Camera:
 
     Types, shapes and the resolution are checked on abstract values too, so the checks
     hold inside ``jit``; values (finite, ``fov_y`` in (0, pi), ``0 < near < far``) where
-    they are concrete, and for traced cameras inside :func:`jaxgfx.checked` while the
+    they are concrete, and for traced cameras inside :func:`~jaxgfx.checks.checked` while the
     program runs.  A batched camera (leading axes, :func:`stack_cameras`) is accepted.
 
     Args:
         cam: the camera.
         where: the function that checks, named in the messages of value checks under
-            :func:`jaxgfx.checked`.
+            :func:`~jaxgfx.checks.checked`.
 
     Raises:
         TypeError: ``cam`` is no :class:`Camera`, or a field has the wrong type.
@@ -177,7 +177,7 @@ def validate_camera(cam: Camera, *, where: str | None = None) -> Camera:
 
 
 def _require_camera_values(cam: Camera, where: str | None) -> None:
-    """Under :func:`jaxgfx.checked`: the values :func:`validate_camera` checks when concrete.
+    """Under :func:`~jaxgfx.checks.checked`, the values :func:`validate_camera` checks.
 
     A NaN anywhere in the camera, or a field of no meaning, gives an empty or garbled frame.
     """

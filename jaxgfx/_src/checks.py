@@ -29,7 +29,7 @@ import itertools
 import math
 import threading
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -137,15 +137,13 @@ _FAILED: list[tuple[int, str]] = []  # failed checks of the runs in progress: (s
 _FAILED_LOCK = threading.Lock()  # the callbacks run on the runtime's threads
 _RUNS = threading.RLock()  # one checked run at a time (nested ones in the same thread)
 
-F = TypeVar("F", bound=Callable[..., Any])
-
 
 def checking() -> bool:
     """True while a function wrapped by :func:`checked` is being traced."""
     return _CHECKING.value is not None
 
 
-def checked(fn: F) -> F:
+def checked(fn: Callable[..., Any]) -> Callable[..., Any]:
     """``fn`` with jaxgfx's value checks on, also for values traced under ``jax.jit``.
 
     Eager calls check their arguments' values anyway; under ``jit`` (and ``vmap``, ``grad``)
@@ -208,7 +206,7 @@ def checked(fn: F) -> F:
             raise ValueError(failed[0][1])
         return out
 
-    return run  # type: ignore[return-value]
+    return run
 
 
 def _check(ok, rule: str, value) -> None:

@@ -25,15 +25,9 @@ Design for large meshes (the thesis's terrain has ~700 k triangles at
   therefore drawn exactly once, with no holes and no double coverage.
 
 Everything is written for one camera; batch cameras (or posed vertices) with
-``jax.vmap``: the frame kernel has a ``custom_vmap`` rule
-(:func:`jaxgfx._src.frames.stacked_vmap`) that folds the batch into a stack of
-frames rendered one after the other (visibility and shading, each frame's
-temporaries sized for one frame) instead of vmapping the while loop, its
-scatters and every per-pixel buffer.  With several host devices
-(``jax.config.update("jax_num_cpu_devices", N)`` or ``XLA_FLAGS=
---xla_force_host_platform_device_count=N`` before JAX starts; the ``jaxgfx``
-CLI sets one per core) the stack is split over them, so a
-``jax.jit(jax.vmap(rasterize))`` batch runs on every core with no mesh set up.
+``jax.vmap``: the frame kernel's batching rule (:func:`jaxgfx._src.frames.per_frame`)
+renders the frames one after the other on the CPU and as one vectorized program
+elsewhere, on the devices the batch lives on.  An eager call runs the frame compiled.
 """
 
 from __future__ import annotations
@@ -102,25 +96,19 @@ class RasterOutput(NamedTuple):
     bary: jax.Array  # (H, W, 3) perspective-correct barycentrics, 0 where empty
 
 
-def _concrete(x) -> bool:
-    """True when ``x`` has values now (not a tracer inside ``jit``/``vmap``/``grad``)."""
-    return not isinstance(x, jax.core.Tracer)
-
-
 def validate_mesh(vertices, faces, attributes=None, *, where: str | None = None) -> None:
     """Checks mesh arrays; raises ``ValueError``/``TypeError`` naming the problem.
 
-    Shapes and dtypes are checked on abstract values too, so the checks hold inside
-    ``jit``; values (finite vertices, face indices in range) are checked where they are
-    concrete, and for traced arrays inside :func:`jaxgfx.checked` while the program runs.
-    Otherwise, under ``jit``, out-of-range face indices are clamped to ``[0, V)``, as JAX
-    clamps every gather index.
+    Shapes and dtypes are checked on abstract values too (the checks hold inside ``jit``);
+    values (finite vertices, face indices in range) where they are concrete, and inside
+    :func:`~jaxgfx.checks.checked` while the program runs.  Otherwise, under ``jit``,
+    out-of-range face indices are clamped to ``[0, V)``, as JAX clamps gather indices.
 
     Args:
         vertices: (V, 3) floats, all finite.
         faces: (F, 3) integers in ``[0, V)``.
         attributes: optional (V, C) per-vertex attributes, all finite.
-        where: the function that checks, named in the messages of :func:`jaxgfx.checked`.
+        where: the function that checks, named in the messages of :func:`~jaxgfx.checks.checked`.
     """
     v_shape, f_shape = np.shape(vertices), np.shape(faces)
     if len(v_shape) != 2 or v_shape[-1] != 3:
@@ -139,14 +127,16 @@ def validate_mesh(vertices, faces, attributes=None, *, where: str | None = None)
             )
         if not jnp.issubdtype(jnp.result_type(attributes), jnp.number):
             raise TypeError(f"attributes must be numbers, got {jnp.result_type(attributes)}")
-        if _concrete(attributes) and not np.all(np.isfinite(np.asarray(attributes))):
+        if not isinstance(attributes, jax.core.Tracer) and not np.all(
+            np.isfinite(np.asarray(attributes))
+        ):
             raise ValueError("attributes must be finite")
-    if _concrete(vertices):
+    if not isinstance(vertices, jax.core.Tracer):
         v = np.asarray(vertices)
         if not np.all(np.isfinite(v)):
             bad = int(np.count_nonzero(~np.isfinite(v).all(axis=1)))
             raise ValueError(f"vertices must be finite: {bad} vertices contain NaN or inf")
-    if _concrete(faces):
+    if not isinstance(faces, jax.core.Tracer):
         f = np.asarray(faces)
         if f.size and (f.min() < 0 or f.max() >= v_shape[0]):
             raise ValueError(
@@ -261,7 +251,7 @@ def interpolate(attributes: jax.Array, faces: jax.Array, tri_id: jax.Array, bary
         bary: (..., 3) barycentrics.
 
     Out-of-range ``faces`` or ``tri_id`` are clamped by the gathers, except inside
-    :func:`jaxgfx.checked`, which raises ``ValueError`` naming them.
+    :func:`~jaxgfx.checks.checked`, which raises ``ValueError`` naming them.
     """
     require_indices("faces", faces, np.shape(attributes)[0], "attribute rows", "interpolate")
     require_indices(
@@ -343,7 +333,7 @@ def rasterize(
         cam: the shared camera (resolution static).
         vertices: (V, 3) world positions.
         faces: (F, 3) int vertex indices; under ``jit`` out-of-range indices are
-            clamped to ``[0, V)`` (eager calls and :func:`jaxgfx.checked` raise).
+            clamped to ``[0, V)`` (eager calls and :func:`~jaxgfx.checks.checked` raise).
         attributes: (V, C) per-vertex attributes (colour, normal, ...);
             default: the world positions.
         cull_backfaces: drop faces that point away from the camera.
@@ -379,11 +369,11 @@ def rasterize(
         the depth falls back to the z-buffer's and its gradient is zero.
 
     Raises:
-        ValueError / TypeError: bad shapes, dtypes or static arguments (also inside
-            ``jit``), bad values of concrete inputs, and of traced ones inside
-            :func:`jaxgfx.checked`: non-finite vertices, attributes or camera fields,
-            face indices out of range, ``fov_y`` outside (0, pi), ``near <= 0`` or
-            ``far <= near``.
+        ValueError: bad shapes or static arguments (also inside ``jit``), bad values of
+            concrete inputs, and of traced ones inside :func:`~jaxgfx.checks.checked`:
+            non-finite vertices, attributes or camera fields, face indices out of range,
+            ``fov_y`` outside (0, pi), ``near <= 0`` or ``far <= near``.
+        TypeError: bad dtypes or types of static arguments.
     """
     check_int("block", block, low=1)
     check_int("chunk", chunk, low=1)
@@ -408,9 +398,8 @@ def rasterize(
 def _rasterize(static, cam, vertices, faces, attributes):
     """:func:`rasterize` of checked arrays: visibility and shading of one frame.
 
-    Under ``jax.vmap`` the frames follow the batching rule of :func:`_raster_kernel`
-    (frame by frame on XLA:CPU, where a vmapped shading pass multiplies every per-pixel
-    temporary by the batch).  Gradients come from :func:`_rasterize_jvp`.
+    ``jax.vmap`` follows :func:`_raster_kernel`'s batching rule; gradients come from
+    :func:`_rasterize_jvp`.
     """
     return RasterOutput(*_raster_kernel(*static)(cam, vertices, faces, attributes))
 
@@ -437,9 +426,8 @@ def _rasterize_jvp(static, primals, tangents):
     return out, t_out
 
 
-# An eager call runs the frame compiled once per shapes and static settings: op by op, the
-# z-buffer's loops would compile again at every call (seconds each) and round apart from
-# the jitted frame.  Under the caller's jit (or vmap, grad) the call is inlined.
+# Eager calls run the frame compiled once per shapes and settings (op by op, the loops would
+# compile at every call, seconds each); under the caller's jit the call is inlined.
 _compiled_rasterize = jax.jit(_rasterize, static_argnums=0)
 
 

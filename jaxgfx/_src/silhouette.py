@@ -450,9 +450,10 @@ def analytic_antialias(
         (H, W, C) antialiased image; pixels away from silhouettes are unchanged.
 
     Raises:
-        ValueError / TypeError: for bad concrete inputs (checked before tracing), and
-            inside :func:`jaxgfx.checked` for bad traced values too (those of
+        ValueError: bad shapes or values of concrete inputs (checked before tracing), and
+            inside :func:`~jaxgfx.checks.checked` bad traced values too (those of
             :func:`jaxgfx.raster.rasterize`; face ids, edges, colour, background).
+        TypeError: bad dtypes or types of concrete inputs (checked before tracing).
 
     References:
         S. Laine, J. Hellsten, T. Karras, Y. Seol, J. Lehtinen, T. Aila,
@@ -540,7 +541,7 @@ def _compiled_antialias(cam, vertices, faces, across, tri, depth, color, bg):
 
 
 def _require_inputs(raster_out, color, edges, background, n_faces: int) -> None:
-    """Under :func:`jaxgfx.checked`: the traced values a wrong blend would come from.
+    """Under :func:`~jaxgfx.checks.checked`: the traced values a wrong blend would come from.
 
     A face id beyond the faces or an edge beyond the edge table is clamped by the gathers,
     so a pixel would blend along another face's outline; a NaN colour spreads to its pair.

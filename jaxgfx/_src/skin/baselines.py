@@ -101,7 +101,7 @@ def lbs_vertex(
 
 
 def _check_lbs_inputs(transforms, vertices, normals, joints, weights, where: str):
-    """Shapes always; values where concrete, and traced ones inside :func:`jaxgfx.checked`.
+    """Shapes always; values where concrete, and traced ones inside :func:`~jaxgfx.checks.checked`.
 
     A NaN transform or weight spreads to every vertex it moves, and an out-of-range joint
     is clamped to the last bone by the gathers: wrong positions, no error.
@@ -159,7 +159,7 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
     Raises:
         ValueError: bad shapes; non-finite arrays, joints out of range or weights that are
             negative or do not sum to one, where concrete (eager calls) and, for traced
-            arrays, inside :func:`jaxgfx.checked`.
+            arrays, inside :func:`~jaxgfx.checks.checked`.
     """
     _check_lbs_inputs(transforms, vertices, normals, joints, weights, "linear_blend_skinning")
     return _LBS(transforms, vertices, normals, joints, weights)

@@ -228,7 +228,7 @@ def brute_force_binding(
 
 
 def require_binding(binding: SkinBinding, num_splines: int, where: str | None = None) -> None:
-    """Inside :func:`jaxgfx.checked`: the binding's values a skinned mesh would go wrong from.
+    """Inside :func:`~jaxgfx.checks.checked`: the binding values a mesh goes wrong from.
 
     A spline index out of range is clamped by the gathers (the vertex follows another
     spline), a NaN weight or coordinate moves its vertex to NaN.

@@ -209,7 +209,7 @@ def skin_gltf_chain(
 
     Raises:
         ValueError: ``pose`` arrays have the wrong shapes, or ``style`` is malformed; inside
-            :func:`jaxgfx.checked` also non-finite traced pose or style values.
+            :func:`~jaxgfx.checks.checked` also non-finite traced pose or style values.
     """
     mats = jnp.asarray(pose.matrices, jnp.float32)
     pts = jnp.asarray(pose.points, jnp.float32)

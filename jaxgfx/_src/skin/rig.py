@@ -100,7 +100,7 @@ def validate_pose(rig: SplineRig, pose: SplinePose, *, where: str | None = None)
     """Raise ``ValueError`` naming the field if a concrete pose is malformed.
 
     Traced poses (inside ``jit``) are only shape-checked, unless inside
-    :func:`jaxgfx.checked`, where their values are checked while the program runs
+    :func:`~jaxgfx.checks.checked`, where their values are checked while the program runs
     (``where`` names the checking function in those messages).
     """
     k = rig.num_splines

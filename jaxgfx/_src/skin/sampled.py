@@ -256,7 +256,7 @@ def _check_pass2(binding, style, styles: str) -> tuple[bool, bool]:
 
 
 def _require_pass2(skinning, style_table, binding: SampledBinding, styled: bool) -> None:
-    """Inside :func:`jaxgfx.checked`: the values pass 2 would turn into wrong vertices.
+    """Inside :func:`~jaxgfx.checks.checked`: the values pass 2 would turn into wrong vertices.
 
     A table coordinate outside the table is clamped by the gathers (the vertex follows
     another spline's end), a NaN row, weight or bind position moves its vertices to NaN.

@@ -83,7 +83,7 @@ def skin_exact(
     """Exact spline skinning of a whole mesh: vmap of :func:`skin_vertex_exact`; (V,3), (V,3).
 
     Raises:
-        ValueError: a malformed pose or style, and inside :func:`jaxgfx.checked` also
+        ValueError: a malformed pose or style, and inside :func:`~jaxgfx.checks.checked` also
             non-finite traced pose, style or binding values and spline indices out of range.
     """
     _style_flags(styles)

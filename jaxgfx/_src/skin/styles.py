@@ -90,7 +90,7 @@ def make_style(textures, curves, hollow=0.0) -> Style:
 
 def _check_style(style: Style, where: str | None = None) -> None:
     """Shape checks that work on traced styles too (values are checked by make_style, and
-    traced ones inside :func:`jaxgfx.checked`: a NaN texel spreads over its vertices)."""
+    traced ones inside :func:`~jaxgfx.checks.checked`: a NaN texel spreads over its vertices)."""
     t, c = jnp.shape(style.textures), jnp.shape(style.curves)
     if len(t) != 3 or t[0] != 3 or t[1] < 2 or t[2] < 2:
         raise ValueError(f"style.textures must have shape (3, A, X) with A, X >= 2, got {t}")

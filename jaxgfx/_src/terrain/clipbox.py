@@ -81,13 +81,14 @@ def _check_level(level) -> int:
 def max_levels(size: int) -> int:
     """The most nested levels ``L`` that boxes of ``size`` (N) voxels per edge can have.
 
-    Levels run from 0 to :data:`MAX_LEVEL`, and the boxes' world coordinates are int32:
+    Levels run from 0 to ``MAX_LEVEL`` (20), and the boxes' world coordinates are int32:
     the viewer's neighbourhood of ``2 N 2^L`` voxels (where the outer box, ``N 2^(L-1)``
     wide, can move to) must fit in ``[-(2^31 - 1), 2^31 - 1]``; N = 64 allows 21 levels,
     N = 1024 allows 19.
 
     Raises:
-        ValueError / TypeError: ``size`` is not a multiple of 8 >= 8.
+        TypeError: ``size`` is not an int.
+        ValueError: ``size`` is not a multiple of 8 >= 8.
     """
     size = _check_size(size)
     levels = MAX_LEVEL + 1

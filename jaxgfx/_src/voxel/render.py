@@ -211,7 +211,7 @@ def _check_lod_distance(lod_distance) -> None:
     """``lod_distance`` must be > 0 (``inf``: level 0 only): the mip levels and the planes'
     spacing are derived from it, and NaN or a distance <= 0 gives them no meaning.
 
-    Concrete values are checked now, traced ones inside :func:`jaxgfx.checked`.
+    Concrete values are checked now, traced ones inside :func:`~jaxgfx.checks.checked`.
     """
     if np.ndim(lod_distance) != 0:
         raise ValueError(f"lod_distance must be a scalar, got shape {np.shape(lod_distance)}")
