@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
+from test_inputs import _lbs_args
 
 import jaxgfx
 from jaxgfx import raycast, skin
@@ -113,16 +114,7 @@ def test_a_batch_of_cameras_names_the_bad_one():
 # ----------------------------------------------------------------------------------------------
 
 
-def _lbs_args():
-    rng = np.random.default_rng(0)
-    t = np.tile(np.eye(3, 4, dtype=np.float32), (3, 1, 1))
-    j = rng.integers(0, 3, (10, 2)).astype(np.int32)
-    w = np.full((10, 2), 0.5, np.float32)
-    p = rng.normal(size=(10, 3)).astype(np.float32)
-    return t, p, p, j, w
-
-
-LBS_ARGS = _lbs_args()
+LBS_ARGS = _lbs_args()  # 3 bones, 10 vertices, 2 influences (test_inputs' blend skinning)
 lbs_checked = jaxgfx.checked(jax.jit(skin.linear_blend_skinning))
 dqs_checked = jaxgfx.checked(jax.jit(skin.dual_quaternion_skinning))
 
