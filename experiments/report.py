@@ -1,11 +1,12 @@
 """The benchmarks page: runs the peer benchmarks and collects their tables into one Markdown page.
 
 Each benchmark below is an experiment of its own (``python -m experiments.NAME``); this runs them
-one after another as subprocesses, each with ``--out DIR/NAME`` (and ``--quick`` when given),
-and joins the Markdown tables they write into one page: a header with the machine and the date,
-then every table under the command that reproduces it.  The page is ``benchmarks.md`` (with
-``benchmarks.json``: the machine, the date, each command, its wall time and its own JSON table)
-in ``--out``, and/or ``docs/benchmarks.md`` with ``--docs`` (the docs site's benchmarks page).
+one after another as subprocesses, each with ``--out DIR/NAME`` (and ``--quick`` when given;
+what it prints is kept beside its tables as ``DIR/NAME/stdout.txt``), and joins the Markdown
+tables they write into one page: a header with the machine and the date, then every table under
+the command that reproduces it.  The page is ``benchmarks.md`` (with ``benchmarks.json``: the
+machine, the date, each command, its wall time and its own JSON table) in ``--out``, and/or
+``docs/benchmarks.md`` with ``--docs`` (the docs site's benchmarks page).
 
 A full run takes tens of minutes on a 2-core machine and needs the peers of
 ``pip install ".[bench]"`` (each benchmark skips a missing peer and prints why).  ``--quick``
@@ -125,6 +126,10 @@ def run_one(bench: Benchmark, quick: bool, out: Path) -> dict:
         text=True,
     )
     seconds = time.perf_counter() - t0
+    # What the benchmark printed (skipped peers, progress, its tables): the smoke test of a
+    # benchmark that `--quick` runs reads it here instead of running the benchmark again.
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stdout.txt").write_text(res.stdout)
     md = out / "table.md"
     js = out / "table.json"
     return {
@@ -180,8 +185,8 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--out",
         default=None,
-        help="write benchmarks.md / benchmarks.json here, each benchmark's own files in "
-        "a subfolder named after it",
+        help="write benchmarks.md / benchmarks.json here, each benchmark's own files and "
+        "printed output (stdout.txt) in a subfolder named after it",
     )
     ap.add_argument(
         "--docs",

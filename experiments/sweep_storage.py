@@ -61,11 +61,11 @@ def _command(mesh: str, n: int, size: str, chunk: int, out: Path) -> list[str]:
             "--chunk", str(chunk), "--out", str(out)]  # fmt: skip
 
 
-def main() -> None:
+def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="12 frames at 96x72")
     p.add_argument("--out", default="out/sweep_storage", help="folder for the table")
-    args = p.parse_args()
+    args = p.parse_args(argv)
     n, size, chunk = (12, "96x72", 4) if args.quick else (1000, "320x240", 8)
     w, h = (int(v) for v in size.split("x"))
     out_dir = Path(args.out)
