@@ -31,9 +31,10 @@ NEEDS_DATA = {"fox": "rigs/fox.glb"}
 
 # Experiments that need a process of their own: they set the number of host devices before
 # JAX's backends start (jax_num_cpu_devices, or XLA_FLAGS for a run of themselves that they
-# start), or pin their threads to cores.  An experiment in neither list runs in its own
-# process too.
-OWN_PROCESS = {"bench_raster", "skinning_bench", "sweep_scaling"}
+# start), or pin their threads to cores; sweep_storage starts its Ctrl-C child with a
+# preexec_fn, which Python calls unsafe in a process with threads (the shared one has JAX's).
+# An experiment in neither list runs in its own process too.
+OWN_PROCESS = {"bench_raster", "skinning_bench", "sweep_scaling", "sweep_storage"}
 # The others run one after another in one shared process (run_experiments.py), which pays
 # the imports, the eager operations' compiles and the library's traces once.  Experiments
 # that use the same kernels follow each other (terrain, then the rasterizer and skinning,
@@ -51,8 +52,8 @@ SHARED_ORDER = (
     "fit_style",
     "artifacts",
     "rle_quality",
+    "vmap_identity",
     "rle_bench",
-    "sweep_storage",
     "report",
 )
 # `report --quick` runs these benchmarks exactly as their smoke test would (`python -m
