@@ -91,6 +91,19 @@ def pytest_unconfigure(config):
         shutil.rmtree(_OWN_CACHE, ignore_errors=True)
 
 
+def pytest_terminal_summary(terminalreporter):
+    """Each experiment's seconds in the shared smoke process (``test_experiments.py``)."""
+    rows = [
+        (dict(r.user_properties)["shared_process_seconds"], r.nodeid)
+        for r in terminalreporter.stats.get("passed", []) + terminalreporter.stats.get("failed", [])
+        if r.when == "call" and "shared_process_seconds" in dict(r.user_properties)
+    ]
+    if rows:
+        terminalreporter.section("experiments in the shared process (seconds each)")
+        for seconds, nodeid in sorted(rows, key=lambda r: -(r[0] or 0)):
+            terminalreporter.write_line(f"{seconds or 0:8.1f}s  {nodeid}")
+
+
 def pytest_collection_modifyitems(items):
     def rank(item):
         name = item.path.name
