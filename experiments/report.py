@@ -128,8 +128,8 @@ def run_one(bench: Benchmark, quick: bool, out: Path) -> dict:
     seconds = time.perf_counter() - t0
     # What the benchmark printed (skipped peers, progress, its tables): the smoke test of a
     # benchmark that `--quick` runs reads it here instead of running the benchmark again.
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "stdout.txt").write_text(res.stdout)
+    with atomic_write(out / "stdout.txt") as tmp:
+        tmp.write_text(res.stdout)
     md = out / "table.md"
     js = out / "table.json"
     return {
