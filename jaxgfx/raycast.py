@@ -41,6 +41,9 @@ behind it).
     steps a frame; :func:`scatter_limits` says which maps it takes) and the wide walk
     (each plane's 2-D DDA in blocks of cells: tens of steps a frame) (``scatter``,
     ``wide``, ``warp``).
+Ray queries (not in the thesis): :func:`cast_rays` gives any batch of rays their first voxel
+    (distance, voxel, face normal, colour, as a :class:`RayHits`), walking the pointer map's
+    columns and skipping blocks of them that the ray passes above or below (``rays``).
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
     :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
@@ -86,6 +89,8 @@ from jaxgfx._src.voxel.planes import plane_extent as plane_extent
 from jaxgfx._src.voxel.planes import plane_parameters as plane_parameters
 from jaxgfx._src.voxel.planes import screen_segments as screen_segments
 from jaxgfx._src.voxel.planes import vanishing_point as vanishing_point
+from jaxgfx._src.voxel.rays import RayHits as RayHits
+from jaxgfx._src.voxel.rays import cast_rays as cast_rays
 from jaxgfx._src.voxel.reference import dda_ray_3d as dda_ray_3d
 from jaxgfx._src.voxel.reference import reference_render as reference_render
 from jaxgfx._src.voxel.render import RenderOutput as RenderOutput
@@ -165,6 +170,9 @@ __all__ = [
     "PlaneParams",
     "plane_parameters",
     "plane_extent",
+    # ray queries
+    "cast_rays",
+    "RayHits",
     # reference renderer
     "dda_ray_3d",
     "reference_render",

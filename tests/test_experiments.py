@@ -52,6 +52,7 @@ SHARED_ORDER = (
     "fit_style",
     "artifacts",
     "rle_quality",
+    "cast_rays",
     "vmap_identity",
     "rle_bench",
     "report",

@@ -158,6 +158,18 @@ def test_render_rle_batch_has_one_frames_loops():
     assert cpu == 7
 
 
+def test_cast_rays_is_one_loop_as_wide_as_its_rays():
+    # cast_rays: one loop over the map cells each ray crosses (data-dependent, at most
+    # X + Z + 1 steps), advancing every ray of the batch together; vmap over batches of rays
+    # keeps that one loop.
+    tree = raycast.procedural_tree(16, key=jax.random.key(0))
+    rle = raycast.as_jax(raycast.encode_rle(tree))
+    origins = jnp.zeros((2, W, 3)) - 5.0
+    directions = jnp.ones((2, W, 3))
+    _pin(lambda o, d: raycast.cast_rays(rle, o, d).t, (origins[0], directions[0]),
+         (origins, directions), loops=1)  # fmt: skip
+
+
 def test_skinning_kernels_batch_without_loops():
     rng = np.random.default_rng(0)
     t = np.tile(np.eye(3, 4, dtype=np.float32), (5, 1, 1))
