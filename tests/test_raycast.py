@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from experiments.cast_rays import random_rays
 from jaxgfx import raycast as RC
 from jaxgfx import raycast as V
 from jaxgfx._src.voxel import render as render_module
@@ -200,19 +201,6 @@ def test_reference_imports_nothing_from_the_renderer():
         assert names <= allowed[module], f"the reference imports {sorted(names)} from {module}"
 
 
-def _random_rays(shape, n: int, seed: int):
-    """Rays from around the box towards points inside it, a quarter from inside it."""
-    rng = np.random.default_rng(seed)
-    size = np.asarray(shape, np.float32)
-    u = rng.normal(size=(n, 3))
-    origins = size / 2 + 0.6 * np.linalg.norm(size) * u / np.linalg.norm(u, axis=1, keepdims=True)
-    directions = rng.uniform(0, 1, (n, 3)) * size - origins
-    k = n // 4
-    origins[:k] = rng.uniform(0, 1, (k, 3)) * size
-    directions[:k] = rng.normal(size=(k, 3))
-    return origins.astype(np.float32), directions.astype(np.float32)
-
-
 cast = jax.jit(RC.cast_rays)
 
 
@@ -234,7 +222,7 @@ def test_cast_rays_meet_the_reference_ddas_voxels(scene, instances):
         inst = V.place_instances(V.encode_rle(vox, levels=2, mips="column"), tiles, (3, 3))
         rle = V.as_jax(inst)
         occ, col = (jnp.asarray(a) for a in V.voxels_to_dense(V.decode_rle(inst)))
-    o, d = _random_rays(rle.shape, 4000, seed=int(instances))
+    o, d = random_rays(rle.shape, 4000, seed=int(instances))
     hits = cast(rle, o, d)
     ref = dda_rays(occ, col, o, d, max_steps=sum(occ.shape) + 3)
     rgb, t, voxel = (np.asarray(a) for a in ref)
@@ -260,7 +248,7 @@ def test_cast_rays_meet_the_reference_ddas_voxels(scene, instances):
 
 def test_cast_rays_batch_shapes_and_bad_rays(scene):
     _, rle, _, _ = scene
-    o, d = _random_rays(rle.shape, 12, seed=2)
+    o, d = random_rays(rle.shape, 12, seed=2)
     flat = cast(rle, o, d)
     grid = RC.cast_rays(rle, o.reshape(3, 4, 3), d.reshape(3, 4, 3))
     assert grid.t.shape == (3, 4) and grid.voxel.shape == (3, 4, 3)
