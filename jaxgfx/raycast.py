@@ -43,7 +43,8 @@ behind it).
     ``wide``, ``warp``).
 Ray queries (not in the thesis): :func:`cast_rays` gives any batch of rays their first voxel
     (distance, voxel, face normal, colour, as a :class:`RayHits`), walking the pointer map's
-    columns and skipping blocks of them that the ray passes above or below (``rays``).
+    columns and skipping blocks of them that the ray passes above or below; a frame's
+    per-pixel face normals, :func:`hit_normals` (``rays``).
 4.5.6 Quality (smoothing, anti-aliasing, screen-space normals):
     :mod:`jaxgfx.post`.
 4.6 Reference for the experiments: :func:`dda_ray_3d`, :func:`reference_render`
@@ -91,6 +92,7 @@ from jaxgfx._src.voxel.planes import screen_segments as screen_segments
 from jaxgfx._src.voxel.planes import vanishing_point as vanishing_point
 from jaxgfx._src.voxel.rays import RayHits as RayHits
 from jaxgfx._src.voxel.rays import cast_rays as cast_rays
+from jaxgfx._src.voxel.rays import hit_normals as hit_normals
 from jaxgfx._src.voxel.reference import dda_ray_3d as dda_ray_3d
 from jaxgfx._src.voxel.reference import reference_render as reference_render
 from jaxgfx._src.voxel.render import RenderOutput as RenderOutput
@@ -173,6 +175,7 @@ __all__ = [
     # ray queries
     "cast_rays",
     "RayHits",
+    "hit_normals",
     # reference renderer
     "dda_ray_3d",
     "reference_render",

@@ -25,6 +25,7 @@ from jaxgfx.camera import (
     camera_basis,
     camera_from_degrees,
     look_at,
+    pixel_rays,
     project,
     stack_cameras,
     supersampled,
@@ -244,6 +245,27 @@ def test_cast_rays_meet_the_reference_ddas_voxels(scene, instances):
     assert np.all(np.sum(hn[entered] * d[entered], -1) < 0)
     near = cast(rle, o, d, far=10.0)
     np.testing.assert_array_equal(np.isfinite(np.asarray(near.t)), np.isfinite(ht) & (ht <= 10))
+
+
+def test_frame_normals_are_the_faces_cast_rays_enters(scene):
+    # hit_normals reads the face each pixel's hit lies on from render_rle's depth; cast_rays
+    # on the same pixels' rays gives the face it enters: the same on >= 99 % of the pixels
+    # both hit (the rest: rays through a grid edge, and pixels the two draw apart).
+    _, rle, _, _ = scene
+    for name in ("oblique", "inside"):
+        cam = dict(CAMERAS)[name]
+        out = render(rle, cam)
+        normals = np.asarray(RC.hit_normals(cam, out.depth))
+        origins, directions = pixel_rays(cam, normalize=False)
+        hits = cast(rle, origins.reshape(-1, 3), directions.reshape(-1, 3))
+        entered = np.abs(np.asarray(hits.normal)).sum(-1).reshape(H, W) > 0
+        both = np.isfinite(np.asarray(out.depth)) & entered
+        assert both.sum() > 1000, name
+        same = np.all(normals == np.asarray(hits.normal).reshape(H, W, 3), -1)
+        assert same[both].mean() >= 0.99, (name, same[both].mean())
+        assert np.all(normals[~np.isfinite(np.asarray(out.depth))] == 0)
+    with pytest.raises(ValueError, match="depth must have the camera's shape"):
+        RC.hit_normals(cam, out.depth[1:])
 
 
 def test_cast_rays_batch_shapes_and_bad_rays(scene):

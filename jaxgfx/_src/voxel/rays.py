@@ -35,6 +35,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxgfx._src.camera import Camera, pixel_rays
 from jaxgfx._src.checks import require_finite
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.grid import (
@@ -47,7 +48,7 @@ from jaxgfx._src.voxel.grid import (
     _running_sum,
 )
 
-__all__ = ["RayHits", "ColumnBounds", "column_bounds", "cast_ray", "cast_rays"]
+__all__ = ["RayHits", "ColumnBounds", "column_bounds", "cast_ray", "cast_rays", "hit_normals"]
 
 
 class RayHits(NamedTuple):
@@ -422,3 +423,36 @@ def cast_rays(rle: RLEVolume, origins, directions, *, far=jnp.inf) -> RayHits:
         # accelerator a loop step is a launch, and the lockstep batch takes the fewest.
         hits = jax.lax.platform_dependent(flat_o, flat_d, cpu=wavefront, default=lockstep)
     return jax.tree_util.tree_map(lambda a: a.reshape(lead + a.shape[1:]), hits)
+
+
+def hit_normals(cam: Camera, depth) -> jax.Array:
+    """Per-pixel normals of a voxel frame: the face of the voxel grid each pixel's hit lies on.
+
+    A ray caster's hit is where the pixel's ray enters a voxel (or a run, or a coarse cell of
+    a mip level): on a face of the voxel grid, at an integer coordinate along the face's axis.
+    The normal is that axis, facing the ray.  Exact where ``depth`` is the pixel's own hit
+    (:func:`~jaxgfx.raycast.render_rle`'s default settings test each pixel's ray against the
+    elements near it); where the ray crosses an edge of the grid within rounding, either face.
+
+    Args:
+        cam: the frame's camera.
+        depth: (H, W) camera-space depth (``+inf`` where nothing was hit).
+
+    Returns:
+        (H, W, 3) float32 unit axis normals facing the camera; 0 where nothing was hit.
+    """
+    depth = jnp.asarray(depth, jnp.float32)
+    if depth.shape != (cam.height, cam.width):
+        raise ValueError(
+            f"depth must have the camera's shape {(cam.height, cam.width)}, got {depth.shape}"
+        )
+    origins, directions = pixel_rays(cam, normalize=False)
+    hit = jnp.isfinite(depth)
+    point = origins + jnp.where(hit, depth, 0.0)[..., None] * directions
+    off_face = jnp.abs(point - jnp.round(point))
+    # A ray parallel to a face never enters through it.
+    off_face = jnp.where(jnp.abs(directions) > 1e-6, off_face, jnp.inf)
+    axis = jnp.argmin(off_face, axis=-1)
+    facing = -jnp.sign(jnp.take_along_axis(directions, axis[..., None], -1))
+    normal = jnp.where(jnp.arange(3) == axis[..., None], facing, 0.0)
+    return jnp.where(hit[..., None], normal, 0.0).astype(jnp.float32)
