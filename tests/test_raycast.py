@@ -275,6 +275,12 @@ def test_cast_rays_batch_shapes_and_bad_rays(scene):
     grid = RC.cast_rays(rle, o.reshape(3, 4, 3), d.reshape(3, 4, 3))
     assert grid.t.shape == (3, 4) and grid.voxel.shape == (3, 4, 3)
     np.testing.assert_array_equal(np.asarray(grid.voxel).reshape(12, 3), flat.voxel)
+    # vmap over batches of rays: the flat batch's hits
+    batched = jax.vmap(RC.cast_rays, in_axes=(None, 0, 0))(
+        rle, o.reshape(3, 4, 3), d.reshape(3, 4, 3)
+    )
+    np.testing.assert_array_equal(np.asarray(batched.voxel).reshape(12, 3), flat.voxel)
+    np.testing.assert_array_equal(np.asarray(batched.t).reshape(12), flat.t)
     with pytest.raises(ValueError, match="origins must have shape"):
         RC.cast_rays(rle, o[:, :2], d)
     with pytest.raises(ValueError, match="same shape"):
