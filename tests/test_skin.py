@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -663,6 +664,59 @@ def test_lbs_kernel_equals_per_vertex_reference(influences):
         lpos, lnrm = lbs_jit(batch[k], v, n, joints, weights)
         np.testing.assert_allclose(bpos[k], lpos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(bnrm[k], lnrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+
+
+def test_lbs_and_dqs_gradients_are_the_per_vertex_references():
+    # Reverse mode through the mesh kernels (their CPU batching rule has none of its own):
+    # gradients w.r.t. the bone transforms and the bind vertices equal those through
+    # lbs_vertex / dqs_vertex vmapped over the vertices, and a central finite difference
+    # along a random direction; vmap over poses of the gradient equals a loop.
+    rng = np.random.default_rng(17)
+    axes = jnp.asarray(rng.normal(size=(4, 3)), jnp.float32)
+    transforms = jnp.concatenate(
+        [
+            jax.vmap(skin.axis_angle_to_matrix)(axes),
+            jnp.asarray(rng.normal(size=(4, 3, 1)), jnp.float32),
+        ],
+        -1,
+    )
+    joints, weights, v, n = _random_influences(rng, 23, 3, 4)
+    per_vertex = {
+        "lbs": lambda t, v: jax.vmap(skin.lbs_vertex, (None, 0, 0, 0, 0))(t, joints, weights, v, n),
+        "dqs": lambda t, v: jax.vmap(skin.dqs_vertex, (None, 0, 0, 0, 0))(
+            skin.dual_quaternions(t), joints, weights, v, n
+        ),
+    }
+    kernels = {"lbs": skin.linear_blend_skinning, "dqs": skin.dual_quaternion_skinning}
+    direction = jnp.asarray(rng.normal(size=transforms.shape), jnp.float32)
+
+    def loss(t, v, skin_fn):
+        pos, nrm = skin_fn(t, v)
+        return jnp.sum(pos**2) + jnp.sum(jnp.sin(3.0 * nrm))
+
+    for name, kernel in kernels.items():
+        mesh_fn = functools.partial(_skin_mesh, kernel, n, joints, weights)
+        ours = jax.jit(jax.grad(lambda t, v, fn=mesh_fn: loss(t, v, fn), (0, 1)))
+        ref = jax.grad(lambda t, v, fn=per_vertex[name]: loss(t, v, fn), (0, 1))
+        g_t, g_v = ours(transforms, v)
+        r_t, r_v = ref(transforms, v)
+        np.testing.assert_allclose(g_t, r_t, rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(g_v, r_v, rtol=1e-4, atol=1e-4)
+        t64, d64, h = np.asarray(transforms, np.float64), np.asarray(direction, np.float64), 1e-3
+        f = functools.partial(_loss_at, loss, v, per_vertex[name])
+        fd = (f(t64 + h * d64) - f(t64 - h * d64)) / (2 * h)
+        assert abs(float(jnp.sum(g_t * direction)) - fd) <= 2e-2 * max(1.0, abs(fd)), name
+        poses = jnp.stack([transforms, transforms.at[:, :, 3].multiply(0.5)])
+        batched = jax.vmap(ours, (0, None))(poses, v)[0]
+        np.testing.assert_allclose(batched[1], ours(poses[1], v)[0], rtol=1e-5, atol=1e-5)
+
+
+def _skin_mesh(kernel, normals, joints, weights, transforms, vertices):
+    return kernel(transforms, vertices, normals, joints, weights)
+
+
+def _loss_at(loss, vertices, skin_fn, transforms) -> float:
+    return float(loss(jnp.asarray(transforms, jnp.float32), vertices, skin_fn))
 
 
 def test_dqs_kernel_equals_per_vertex_reference():

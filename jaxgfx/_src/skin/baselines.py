@@ -156,6 +156,10 @@ def linear_blend_skinning(transforms, vertices, normals, joints, weights):
         joints: (V, I) int bone indices.
         weights: (V, I) weights, non-negative, summing to one per vertex.
 
+    Returns:
+        Positions (V, 3) and unit normals (V, 3), differentiable in every float input
+        (``jax.grad``, also under ``vmap``: the derivatives of :func:`lbs_vertex`).
+
     Raises:
         ValueError: bad shapes; non-finite arrays, joints out of range or weights that are
             negative or do not sum to one, where concrete (eager calls) and, for traced
@@ -188,7 +192,28 @@ def _lbs_mesh(transforms, vertices, normals, joints, weights):
     )
 
 
-_LBS = split_rows(per_frame(_lbs_mesh, chunk=POSE_CHUNK), rows=(1, 2, 3, 4))
+def _differentiable(kernel):
+    """``kernel`` with the CPU's batching rule of :data:`POSE_CHUNK` poses a step under
+    ``vmap``, and the derivatives of the plain ``kernel``.
+
+    The batching rule (a ``custom_vmap``) has no reverse mode of its own: ``jax.grad`` through
+    it fails ("Linearization failed").  Its JVP is the plain kernel's, which batches as
+    ``vmap`` does and is linear in the tangents, so reverse mode transposes it.
+    """
+    batched = per_frame(kernel, chunk=POSE_CHUNK)
+
+    @jax.custom_jvp
+    def fn(transforms, vertices, normals, joints, weights):
+        return batched(transforms, vertices, normals, joints, weights)
+
+    @fn.defjvp
+    def fn_jvp(primals, tangents):
+        return jax.jvp(kernel, primals, tangents)
+
+    return fn
+
+
+_LBS = split_rows(_differentiable(_lbs_mesh), rows=(1, 2, 3, 4))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -361,4 +386,4 @@ def _dqs_mesh(transforms, vertices, normals, joints, weights):
     return pos, normalize_rows(lax.optimization_barrier(raw))
 
 
-_DQS = split_rows(per_frame(_dqs_mesh, chunk=POSE_CHUNK), rows=(1, 2, 3, 4))
+_DQS = split_rows(_differentiable(_dqs_mesh), rows=(1, 2, 3, 4))
