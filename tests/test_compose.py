@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import imageio.v3 as iio
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -40,6 +43,22 @@ def test_background_sky_above_ground_below():
     # looking straight down is all ground, finite
     down = background(camera_from_degrees([0, 0, 0], 0, -90, 0, 60, 8, 8))
     assert np.all(np.isfinite(np.asarray(down.color)))
+
+
+def test_background_gradients_wrt_the_camera_are_finite_and_right():
+    # Rows above and below the horizon: sqrt's infinite slope at 0 must not turn the ground
+    # rows' zero cotangents into NaN.  d/dpitch matches a central difference.
+    cam = camera_from_degrees([0, 0, 0], 10, 5, 0, 60, 16, 12)
+
+    def total(pitch, yaw):
+        return jnp.sum(background(dataclasses.replace(cam, pitch=pitch, yaw=yaw)).color)
+
+    g_pitch, g_yaw = jax.grad(total, (0, 1))(cam.pitch, cam.yaw)
+    assert np.isfinite(float(g_pitch)) and np.isfinite(float(g_yaw))
+    h = 1e-3
+    fd = (total(cam.pitch + h, cam.yaw) - total(cam.pitch - h, cam.yaw)) / (2 * h)
+    assert float(g_pitch) == pytest.approx(float(fd), rel=2e-2)
+    assert abs(float(g_pitch)) > 1.0  # the horizon moves through the rows
 
 
 def test_lambert_and_fog():

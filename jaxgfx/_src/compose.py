@@ -88,6 +88,13 @@ def coverage(frames) -> jax.Array:
     return jnp.mean(onehot.astype(jnp.float32), axis=(1, 2))
 
 
+def _sqrt_up(x):
+    """``sqrt(clip(x, 0, 1))`` with finite derivatives: 0 where ``x <= 0`` (double where: the
+    untaken branch never sees sqrt's infinite slope at 0, which times 0 is NaN)."""
+    above = x > 0
+    return jnp.where(above, jnp.sqrt(jnp.where(above, jnp.minimum(x, 1.0), 1.0)), 0.0)
+
+
 def background(
     cam: Camera,
     horizon=(0.78, 0.86, 0.95),
@@ -102,8 +109,8 @@ def background(
     _, d = pixel_rays(cam, normalize=True)
     up = d[..., 1:2]
     hz = jnp.asarray(horizon, jnp.float32)
-    sky = hz + (jnp.asarray(zenith, jnp.float32) - hz) * jnp.sqrt(jnp.clip(up, 0.0, 1.0))
-    gnd = hz + (jnp.asarray(ground, jnp.float32) - hz) * jnp.sqrt(jnp.clip(-up, 0.0, 1.0))
+    sky = hz + (jnp.asarray(zenith, jnp.float32) - hz) * _sqrt_up(up)
+    gnd = hz + (jnp.asarray(ground, jnp.float32) - hz) * _sqrt_up(-up)
     color = jnp.where(up >= 0, sky, gnd)
     return Frame(color, jnp.full(color.shape[:2], jnp.inf, jnp.float32))
 
