@@ -783,9 +783,9 @@ def test_volume_terrain_placed_and_tiled():
 
 
 def test_combinators():
-    # Each combinator against its operands' samples, eagerly and jitted (a jit of its own:
-    # in whole runs the module's shared sample_jit once gave Difference a result like
-    # Union's, not reproduced alone; the eager check tells the two paths apart).
+    # Each combinator against its operands' samples, eagerly and by a jit of its own (not the
+    # module's shared sample_jit), so that a fault of a compiled program and one of the
+    # sampling tell themselves apart.
     a, b = T.SawTerrain(modulus=9, threshold=4), T.XorTerrain(modulus=5, threshold=2)
     origin, shape = (-5, 2, 11), (9, 8, 7)
     sa, sb = sample(a, origin, shape), sample(b, origin, shape)
