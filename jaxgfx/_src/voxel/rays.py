@@ -214,6 +214,11 @@ def ray_start(rle: RLEVolume, origin, direction, far) -> tuple[_Ray, _Walk]:
     return ray, _Walk(first[0], first[2], t_enter, normal0, jnp.int32(0), missed, _miss())
 
 
+def _crossing(ray: _Ray, axis: int, face):
+    """The ray's parameter where it reaches the plane ``axis = face`` (+inf if parallel)."""
+    return jnp.where(ray.parallel[axis], jnp.inf, (face - ray.origin[axis]) * ray.inv[axis])
+
+
 def skip_block(rle: RLEVolume, bounds: ColumnBounds, ray: _Ray, ix, iz, t_in):
     """The largest aligned block round cell ``(ix, iz)`` that the ray crosses above or below
     all it holds (:class:`ColumnBounds`): ``(skip, t_out, across_x, next ix, next iz)``.
@@ -221,7 +226,7 @@ def skip_block(rle: RLEVolume, bounds: ColumnBounds, ray: _Ray, ix, iz, t_in):
     ``skip`` False: no block is clear (the cell's column is tested instead).
     """
     X0, _, Z0 = rle.level_shapes[0]
-    o, d, inv, step, parallel = ray.origin, ray.direction, ray.inv, ray.step, ray.parallel
+    o, d, step = ray.origin, ray.direction, ray.step
     tx, tz = ix // X0, iz // Z0
     tiles = rle.tiles
     tile = tiles[jnp.clip(tx, 0, tiles.shape[0] - 1), jnp.clip(tz, 0, tiles.shape[1] - 1)]
@@ -231,8 +236,8 @@ def skip_block(rle: RLEVolume, bounds: ColumnBounds, ray: _Ray, ix, iz, t_in):
         bx, bz = lx >> k, lz >> k
         x0, z0 = tx * X0 + (bx << k), tz * Z0 + (bz << k)
         x1, z1 = x0 + (1 << k), z0 + (1 << k)
-        t_bx = jnp.where(parallel[0], jnp.inf, (jnp.where(step[0] > 0, x1, x0) - o[0]) * inv[0])
-        t_bz = jnp.where(parallel[2], jnp.inf, (jnp.where(step[2] > 0, z1, z0) - o[2]) * inv[2])
+        t_bx = _crossing(ray, 0, jnp.where(step[0] > 0, x1, x0))
+        t_bz = _crossing(ray, 2, jnp.where(step[2] > 0, z1, z0))
         t_blk = jnp.minimum(jnp.minimum(t_bx, t_bz), ray.t_exit)
         ya, yb = o[1] + d[1] * t_in, o[1] + d[1] * t_blk
         cx, cz = jnp.clip(bx, 0, top.shape[0] - 1), jnp.clip(bz, 0, top.shape[1] - 1)
@@ -255,10 +260,10 @@ def walk_step(rle: RLEVolume, bounds: ColumnBounds, ray: _Ray, w: _Walk, far) ->
     """One step of the walk: skip the largest clear block, or test the cell's column and
     move to the next cell (a done walk stays as it is)."""
     X, _, Z = rle.shape
-    o, inv, step, parallel = ray.origin, ray.inv, ray.step, ray.parallel
+    o, step = ray.origin, ray.step
     ahead = (step > 0).astype(jnp.int32)
-    tx = jnp.where(parallel[0], jnp.inf, (w.ix + ahead[0] - o[0]) * inv[0])
-    tz = jnp.where(parallel[2], jnp.inf, (w.iz + ahead[2] - o[2]) * inv[2])
+    tx = _crossing(ray, 0, w.ix + ahead[0])
+    tz = _crossing(ray, 2, w.iz + ahead[2])
     t_cell = jnp.minimum(jnp.minimum(tx, tz), ray.t_exit)
     found, hit = column_hit(rle, w.ix, w.iz, w.t_in, t_cell, w.normal_in, o, ray.direction)
     skip, t_skip, skip_x, sx, sz = skip_block(rle, bounds, ray, w.ix, w.iz, w.t_in)
