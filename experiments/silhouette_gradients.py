@@ -52,7 +52,15 @@ from scipy.spatial import ConvexHull
 
 from experiments.common import DATA, machine, markdown_table, time_jitted, write_table
 from jaxgfx import skin
-from jaxgfx.camera import Camera, camera_basis, focal_length, look_at, project, supersampled
+from jaxgfx.camera import (
+    Camera,
+    camera_basis,
+    focal_length,
+    look_at,
+    project,
+    supersampled,
+    yaw_pitch_roll_rotation,
+)
 from jaxgfx.raster import rasterize
 from jaxgfx.silhouette import analytic_antialias, silhouette_edges
 
@@ -128,8 +136,9 @@ def moved(scene: Scene, p):
     verts = c + jnp.exp(p[6]) * rel + p[:3]
     cam = dataclasses.replace(
         scene.cam,
-        yaw=scene.cam.yaw + p[7],
-        pitch=scene.cam.pitch + p[8],
+        rotation=yaw_pitch_roll_rotation(
+            scene.cam.yaw + p[7], scene.cam.pitch + p[8], scene.cam.roll
+        ),
         position=scene.cam.position + p[9:12],
     )
     return cam, verts

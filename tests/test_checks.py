@@ -59,9 +59,13 @@ RASTER_CASES = {
         (_cam(position=[0.4, NAN, 3.0]), V, F, V),
         "cam.position: 1 of 3 values are NaN or infinite (in rasterize)",
     ),
-    "NaN camera rotation": ((_cam(yaw=NAN), V, F, V), "cam.yaw: 1 of 1 values"),
-    "NaN fov": ((_cam(fov_y=NAN), V, F, V), "cam.fov_y: 1 of 1 values are NaN"),
-    "fov of pi or more": ((_cam(fov_y=4.0), V, F, V), "cam.fov_y: 4.0 is outside (0, pi)"),
+    "NaN camera rotation": (
+        (_cam(rotation=[1.0, 0.0, NAN, 0.0]), V, F, V),
+        "cam.rotation: 1 of 4 values",
+    ),
+    "zero rotation": ((_cam(rotation=[0.0] * 4), V, F, V), "cam.rotation: has norm 0.0"),
+    "NaN focal length": ((_cam(focal=[NAN, 40.0]), V, F, V), "cam.focal: 1 of 2 values are NaN"),
+    "negative focal length": ((_cam(focal=[40.0, -4.0]), V, F, V), "cam.focal: -4.0 must be > 0"),
     "near <= 0": ((_cam(near=-1.0), V, F, V), "cam.near: -1.0 must be > 0"),
     "far <= near": ((_cam(far=0.05), V, F, V), "cam.far: 0.05 must be > near"),
 }
@@ -77,9 +81,11 @@ def test_checked_rasterize_names_a_bad_traced_value(case):
 def test_good_input_renders_the_same_frame_checked_or_not(raster_jit):
     out = raster_checked(CAM, V, F, V)
     ref = raster_jit(CAM, V, F, V)
-    for name in ("depth", "tri_id", "bary"):
-        np.testing.assert_array_equal(np.asarray(getattr(out, name)), getattr(ref, name))
-    # another program: XLA may fuse the shading otherwise (an ulp here and there)
+    np.testing.assert_array_equal(np.asarray(out.tri_id), ref.tri_id)
+    # Another program: XLA may fuse the camera's rotation and the shading otherwise, an
+    # ulp here and there.
+    np.testing.assert_allclose(np.asarray(out.depth), ref.depth, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(out.bary), ref.bary, rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(out.color), ref.color, rtol=0, atol=1e-6)
     # Without checked the same bad values pass under jit: the checks are opt-in.
     bad = np.where(np.arange(F.size).reshape(F.shape) == 7, 1532, F)
@@ -152,8 +158,8 @@ def test_eager_calls_refuse_the_same_values_before_any_work():
         skin.linear_blend_skinning(*_lbs_with(4, _nan_at(LBS_ARGS[4], (2, 1))))
     with pytest.raises(ValueError, match="transforms: 1 of 36 values are NaN"):
         skin.dual_quaternion_skinning(*_lbs_with(0, _nan_at(LBS_ARGS[0], (1, 0, 3))))
-    with pytest.raises(ValueError, match="camera yaw must be finite"):
-        jaxgfx.background(_cam(yaw=NAN))  # a NaN sky otherwise
+    with pytest.raises(ValueError, match="camera rotation must be finite"):
+        jaxgfx.background(_cam(rotation=[1.0, NAN, 0.0, 0.0]))  # a NaN sky otherwise
 
 
 def test_checks_hold_under_grad_and_when_jit_is_outside():
@@ -277,8 +283,8 @@ def test_a_camera_of_too_many_pixels_is_refused_naming_its_size():
     with pytest.raises(ValueError, match=r"width x height = 100000 x 100000 .* 2147483647"):
         look_at([0, 0, 3], [0, 0, 0], 50.0, 100000, 100000)
     huge = Camera(
-        position=[0, 0, 3], yaw=0.0, pitch=0.0, roll=0.0, fov_y=1.0, near=0.1, far=10.0,
-        width=100000, height=100000,
+        position=[0, 0, 3], rotation=[0, 0, 0, 1], focal=[9e4, 9e4], principal=[5e4, 5e4],
+        near=0.1, far=10.0, width=100000, height=100000,
     )  # fmt: skip
     with pytest.raises(ValueError, match="width x height"):
         rasterize(huge, V, F)

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxgfx.camera import camera_from_degrees
+from jaxgfx.camera import camera_from_degrees, yaw_pitch_roll_rotation
 from jaxgfx.compose import Frame, background, composite, depth_image, fog, lambert, to_uint8
 from jaxgfx.io import atomic_write, save_png
 
@@ -51,7 +51,8 @@ def test_background_gradients_wrt_the_camera_are_finite_and_right():
     cam = camera_from_degrees([0, 0, 0], 10, 5, 0, 60, 16, 12)
 
     def total(pitch, yaw):
-        return jnp.sum(background(dataclasses.replace(cam, pitch=pitch, yaw=yaw)).color)
+        rotation = yaw_pitch_roll_rotation(yaw, pitch, 0.0)
+        return jnp.sum(background(dataclasses.replace(cam, rotation=rotation)).color)
 
     g_pitch, g_yaw = jax.grad(total, (0, 1))(cam.pitch, cam.yaw)
     assert np.isfinite(float(g_pitch)) and np.isfinite(float(g_yaw))

@@ -53,6 +53,7 @@ SHARED_ORDER = (
     "artifacts",
     "rle_quality",
     "cast_rays",
+    "camera_models",
     "vmap_identity",
     "rle_bench",
     "report",

@@ -123,7 +123,7 @@ def test_gradients_finite_and_nonzero(fitted):
 def test_vmap_path_equals_loop(problem, fitted):
     _, _, _, cams, _, targets, loop = problem
     images = loop(INIT)
-    fy = 0.5 * H / np.tan(0.5 * np.asarray(cams.fov_y))
+    fy = np.asarray(cams.focal)[:, 1]
     losses = [
         skin.image_loss(
             images.silhouette[p, k],

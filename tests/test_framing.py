@@ -16,8 +16,8 @@ def _screen(cam, points):
     p = np.asarray(points, np.float64) - np.asarray(cam.position, np.float64)
     r, u, f = (np.asarray(b, np.float64) for b in camera_basis(cam))
     z = p @ f
-    fy = 0.5 * cam.height / np.tan(0.5 * float(cam.fov_y))
-    return 0.5 * cam.width + fy * (p @ r) / z, 0.5 * cam.height - fy * (p @ u) / z, z
+    (fx, fy), (cx, cy) = np.asarray(cam.focal, np.float64), np.asarray(cam.principal, np.float64)
+    return cx + fx * (p @ r) / z, cy - fy * (p @ u) / z, z
 
 
 @pytest.mark.parametrize("seed", range(4))

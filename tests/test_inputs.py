@@ -78,15 +78,15 @@ BAD = {
         ValueError,
         "position",
     ),
-    "camera fov_y 0": (
-        lambda: rasterize(dataclasses.replace(CAM, fov_y=0.0), V, F),
+    "camera focal 0": (
+        lambda: rasterize(dataclasses.replace(CAM, focal=[0.0, 0.0]), V, F),
         ValueError,
-        "fov_y",
+        "focal",
     ),  # fmt: skip
-    "camera string yaw": (
-        lambda: rasterize(dataclasses.replace(CAM, yaw="0"), V, F),
+    "camera string rotation": (
+        lambda: rasterize(dataclasses.replace(CAM, rotation="0"), V, F),
         TypeError,
-        "yaw",
+        "rotation",
     ),  # fmt: skip
     "camera far <= near": (
         lambda: rasterize(dataclasses.replace(CAM, far=0.05), V, F),
@@ -170,9 +170,9 @@ def test_bad_input_names_the_argument(case, rle):
 
 
 def test_camera_from_lists_is_one_leaf_per_field():
-    cam = Camera(position=[0, 0, -3], yaw=0.0, pitch=0.0, roll=0.0, fov_y=1.0, near=0.1,
-                 far=10.0, width=16, height=12)  # fmt: skip
-    assert len(jax.tree_util.tree_leaves(cam)) == 7
+    cam = Camera(position=[0, 0, -3], rotation=[0, 0, 0, 1], focal=[11.0, 11.0],
+                 principal=[8, 6], near=0.1, far=10.0, width=16, height=12)  # fmt: skip
+    assert len(jax.tree_util.tree_leaves(cam)) == 6
     assert np.asarray(cam.position).dtype == np.float32
     out = jax.jit(rasterize)(cam, V, F)
     assert np.isfinite(np.asarray(out.depth)).any()

@@ -13,10 +13,12 @@ import trimesh
 from jaxgfx.camera import (
     camera_basis,
     camera_from_degrees,
+    camera_from_opencv,
     look_at,
     orbit_cameras,
     pixel_rays,
     supersampled,
+    yaw_pitch_roll_rotation,
 )
 from jaxgfx.io import load_mesh, mesh_arrays
 from jaxgfx.raster import coverage_count, rasterize
@@ -91,13 +93,34 @@ def test_depth_matches_trimesh_with_half_width_pixels(raster_jit):
     # The thesis's 2x1 AA frame: same view, pixels half as wide (pixel_aspect 0.5).
     mesh = trimesh.creation.torus(1.0, 0.35, major_sections=24, minor_sections=12)
     cams = [supersampled(c, (2, 1)) for c in _cams_for(mesh, w=32, h=48)]
-    assert cams[0].pixel_aspect == 0.5 and cams[0].shape == (48, 64)
+    assert float(cams[0].pixel_aspect) == 0.5 and cams[0].shape == (48, 64)
     _check_mesh(mesh, raster_jit, cams)
 
 
 def test_depth_matches_trimesh_on_bunny(raster_jit, data_dir):
     mesh = load_mesh(data_dir / "meshes" / "bun_zipper_res2.ply")
     _check_mesh(mesh, raster_jit)
+
+
+def test_an_opencv_camera_sees_what_its_rays_meet(raster_jit):
+    # A COLMAP-like camera (fx != fy, principal point 9 % and 6 % off centre, rolled): the
+    # depth is that of its pixels' rays written from K, R and t alone, met by trimesh.
+    from experiments.camera_models import (
+        opencv_intrinsics,
+        opencv_look_at,
+        opencv_pixel_rays,
+        trimesh_depth,
+    )
+
+    mesh = trimesh.creation.torus(1.0, 0.35, major_sections=24, minor_sections=12)
+    v, f = np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)
+    K = opencv_intrinsics(64, 48)
+    R, t = opencv_look_at([0.9, 2.2, -2.4], [0.3, 0.0, 0.2], roll=-17.0)
+    cam = camera_from_opencv(K, R, t, 64, 48, near=0.01, far=100.0)
+    ref = trimesh_depth(v, f, *opencv_pixel_rays(K, R, t, 64, 48))
+    assert 0.2 < np.isfinite(ref).mean() < 0.9
+    a = agreement(np.asarray(raster_jit(cam, v, f, v).depth), ref)
+    assert a >= AGREE, a
 
 
 def _screen_grid(cam, n=9, jitter=0.2, seed=0, depth=2.0):
@@ -247,7 +270,9 @@ def test_vmap_over_cameras_and_posed_meshes_matches_loop_no_recompile(user_jit, 
     for k in range(4):
         _same_frames(outp_vec, jax.tree_util.tree_map(lambda x, k=k: x[k], outp), k)
     # A second batch of the same shapes (new cameras, moved vertices): no recompilation.
-    cams2 = dataclasses.replace(cams, yaw=cams.yaw + 7.0)
+    cams2 = dataclasses.replace(
+        cams, rotation=yaw_pitch_roll_rotation(cams.yaw + 7.0, cams.pitch, cams.roll)
+    )
     with compile_counter() as compiles:
         jax.block_until_ready(by_cam(cams2, v + 0.05))
         jax.block_until_ready(by_pose(posed * 1.01))
@@ -282,7 +307,8 @@ def test_reverse_mode_through_vmap():
     # and equals the sum of the per-camera gradients.
     cam, v, f, colors = _grad_scene()
     cams = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), cam)
-    cams = dataclasses.replace(cams, yaw=cams.yaw + jnp.array([0.0, 4.0]))
+    turned = yaw_pitch_roll_rotation(cams.yaw + jnp.array([0.0, 4.0]), cams.pitch, cams.roll)
+    cams = dataclasses.replace(cams, rotation=turned)
 
     def loss(vertices, c):
         out = rasterize(c, vertices, f, colors)
@@ -446,15 +472,15 @@ def test_gradients_match_finite_differences_on_interior_pixels():
     cam, v, f, colors = _grad_scene()
 
     @jax.jit
-    def render(vertices, position, yaw, attributes):
-        c = dataclasses.replace(cam, position=position, yaw=yaw)
+    def render(vertices, position, rotation, attributes):
+        c = dataclasses.replace(cam, position=position, rotation=rotation)
         out = rasterize(c, vertices, f, attributes)
         return out.depth, out.bary, out.color, out.tri_id
 
     # One compiled program serves every check: jax.linearize compiles the primal (with the
     # residuals) once; the tangent map and its transpose are small programs.  (check_grads
     # would compile the primal, its JVP and its VJP separately: ~3x the compile time.)
-    args = (v, np.asarray(cam.position), np.asarray(cam.yaw), colors)
+    args = (v, np.asarray(cam.position), np.asarray(cam.rotation), colors)
     ref = jax.linearize(render, *args)[0]
     tid = np.pad(np.asarray(ref[3]), 1, constant_values=-2)
     # Interior: covered, and all 8 neighbours see the same face, so an eps step (1e-3 world

@@ -25,6 +25,7 @@ from jaxgfx.camera import (
     project,
     screen_to_camera,
     supersampled,
+    yaw_pitch_roll_rotation,
 )
 from jaxgfx.raster import rasterize
 from jaxgfx.silhouette import analytic_antialias, silhouette_edges
@@ -232,13 +233,28 @@ def test_vertex_gradients_match_finite_differences(vertex):
         assert n >= 6 and frac >= GRAD_AGREE, (vertex, axis, n, frac)
 
 
-@pytest.mark.parametrize("field", ["yaw", "pitch", "position"])
-def test_camera_gradients_match_finite_differences(field):
+def _camera_tangents(field):
+    """Camera tangents along one kind of motion: a turn (yaw or pitch) or a field's axes."""
     still = _no_move(CUBE_CAM)
-    for d in [1.0] if field != "position" else np.eye(3, dtype=np.float32):
-        dcam = dataclasses.replace(still, **{field: jnp.asarray(d, jnp.float32)})
-        n, frac = _fd_agreement(dcam, jnp.zeros(CUBE_V.shape), CAM_FD_STEP)
-        assert n >= 20 and frac >= GRAD_AGREE, (field, d, n, frac)
+    if field in ("yaw", "pitch"):
+        angles = tuple(jnp.float32(a) for a in (CUBE_CAM.yaw, CUBE_CAM.pitch, CUBE_CAM.roll))
+        turn = tuple(jnp.float32(name == field) for name in ("yaw", "pitch", "roll"))
+        _, dq = jax.jvp(yaw_pitch_roll_rotation, angles, turn)
+        return [dataclasses.replace(still, rotation=dq)]
+    # Pixels move by 1e3 x the step (1 / 100 px) along focal lengths and principal point.
+    scale = 1.0 if field == "position" else 1e3
+    axes = np.eye(3 if field == "position" else 2, dtype=np.float32) * scale
+    return [dataclasses.replace(still, **{field: jnp.asarray(d)}) for d in axes]
+
+
+@pytest.mark.parametrize("field", ["yaw", "pitch", "position", "focal", "principal"])
+def test_camera_gradients_match_finite_differences(field):
+    # A turn moves the quaternion's components (about 0.5) by the step: 4x the step keeps
+    # the float32 quaternion's rounding (6e-8) out of the central difference.
+    step = 4 * CAM_FD_STEP if field in ("yaw", "pitch") else CAM_FD_STEP
+    for dcam in _camera_tangents(field):
+        n, frac = _fd_agreement(dcam, jnp.zeros(CUBE_V.shape), step)
+        assert n >= 20 and frac >= GRAD_AGREE, (field, n, frac)
 
 
 def test_jacobian_on_a_triangle_matches_central_differences():
@@ -355,7 +371,8 @@ def _moved(p, verts):
     w = p[3:6]
     k = jnp.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
     rot = jax.scipy.linalg.expm(k)
-    cam = dataclasses.replace(SPHERE_CAM, yaw=SPHERE_CAM.yaw + p[7])
+    turned = yaw_pitch_roll_rotation(SPHERE_CAM.yaw + p[7], SPHERE_CAM.pitch, SPHERE_CAM.roll)
+    cam = dataclasses.replace(SPHERE_CAM, rotation=turned)
     return cam, jnp.exp(p[6]) * verts @ rot.T + p[:3]
 
 

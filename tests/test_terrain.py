@@ -1272,6 +1272,35 @@ def test_exported_mesh_is_one_surface(name):
     assert len(np.unique(np.asarray(raw.vertices), axis=0)) < len(raw.vertices)
 
 
+def test_an_opencv_camera_sees_what_its_rays_meet(raster_jit):
+    # The Clip-Box terrain drawn through a COLMAP-like camera (fx != fy, principal point
+    # off centre, rolled; relative to the viewer as the terrain draws): its depth is that
+    # of the camera's pixel rays, written from K, R and t alone, met by trimesh on the
+    # levels' drawn faces.
+    from experiments.camera_models import (
+        opencv_intrinsics,
+        opencv_look_at,
+        opencv_pixel_rays,
+        trimesh_depth,
+    )
+    from jaxgfx.camera import camera_from_opencv
+
+    viewer = np.array([5, 3, 7])
+    views = T.level_views(pipeline_on(TERRAINS["saw"]).init(viewer))
+    K = opencv_intrinsics(64, 48, 70.0)
+    R, t = opencv_look_at([-3.0, 14.0, -30.0], [0.0, -6.0, 4.0], roll=8.0)
+    cam = camera_from_opencv(K, R, t, 64, 48, near=0.05, far=500.0)
+    frame = T.render_levels(cam, views, viewer, rasterize_fn=raster_jit)
+    v, _, f, _ = T.level_arrays(views, viewer)
+    ref = trimesh_depth(v, f, *opencv_pixel_rays(K, R, t, 64, 48))
+    ours = np.asarray(frame.depth)
+    assert 0.3 < np.isfinite(ref).mean()
+    hit = np.isfinite(ref) & np.isfinite(ours)
+    span = ref[np.isfinite(ref)].max() - ref[np.isfinite(ref)].min()
+    same = (np.isfinite(ref) == np.isfinite(ours)) & (~hit | (np.abs(ours - ref) <= 1e-3 * span))
+    assert same.mean() >= 0.995, same.mean()
+
+
 def test_exported_snapped_heightmap_is_one_surface():
     # Snapped onto a rugged height map, thin wall slivers fold over each other, and the
     # faces around an edge where voxels touch are paired by the voxel lattice instead

@@ -7,17 +7,28 @@ can be merged per pixel (thesis 2.4.2, Fig. 2.3).
 Conventions (used by every module of jaxgfx):
 
 * World: right-handed, **y up**, x-z is the ground plane.
-* ``yaw`` rotates about +y; ``yaw = 0`` looks along +z, positive yaw turns
-  the view towards +x.  ``pitch`` is positive looking up.  ``roll`` turns the
-  image clockwise about the view axis.  All angles are radians inside the
-  pytree; :func:`camera_from_degrees` takes degrees.
 * Camera space: ``x`` right, ``y`` up, ``z`` forward (distance along the view
   axis).  *Depth* everywhere in jaxgfx means camera-space ``z``.
 * Screen: pixel ``(i, j)`` = (column, row), row 0 at the top, pixel centres
-  at ``(i + 0.5, j + 0.5)``.  Pixels are square unless ``pixel_aspect``
-  (pixel width / height) says otherwise: :func:`supersampled` renders the
-  same view on a finer grid for anti-aliasing (the thesis's 2x1 AA uses
-  pixels half as wide, 4.5.6.2).
+  at ``(i + 0.5, j + 0.5)``.  A camera-space point ``(x, y, z)`` lands at
+  ``(cx + fx x / z, cy - fy y / z)``: ``(fx, fy)`` are the focal lengths in
+  pixels and ``(cx, cy)`` the principal point, as in an OpenCV intrinsics
+  matrix ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (OpenCV's camera ``y``
+  points down; jaxgfx's points up, hence the minus).
+* Orientation: a quaternion ``(w, x, y, z)`` of any non-zero length, the
+  rotation from OpenCV camera axes (right, down, forward) to the world.  It is
+  normalised where it is used, so a gradient step on it never leaves the set
+  of rotations and no orientation is singular (Euler angles lock at a pitch of
+  +-90 degrees).  :func:`camera_from_degrees` and :func:`yaw_pitch_roll_rotation`
+  build it from yaw/pitch/roll: ``yaw`` rotates about +y (0 looks along +z,
+  positive turns the view towards +x), ``pitch`` is positive looking up,
+  ``roll`` turns the image clockwise about the view axis.
+* Other conventions convert exactly: :func:`camera_from_opencv` /
+  :func:`opencv_from_camera` (``K`` and world-to-camera ``[R|t]``, COLMAP's),
+  :func:`camera_from_c2w` / :func:`c2w_from_camera` (4x4 camera-to-world in
+  the OpenGL convention of NeRF's ``transforms.json``: x right, y up, z back).
+* :func:`supersampled` renders the same view on a finer grid for
+  anti-aliasing (the thesis's 2x1 AA uses pixels half as wide, 4.5.6.2).
 """
 
 from __future__ import annotations
@@ -39,12 +50,15 @@ from jaxgfx._src.checks import (
     require_values,
     static_field,
 )
+from jaxgfx._src.rotation import quaternion_of_angles, rotation_matrix
 
 __all__ = [
     "Camera",
     "camera_from_degrees",
+    "intrinsics_matrix",
     "look_at",
     "orbit_cameras",
+    "yaw_pitch_roll",
     "camera_basis",
     "focal_length",
     "focal_lengths",
@@ -60,7 +74,6 @@ __all__ = [
     "stack_cameras",
     "validate_camera",
     "as_float32",
-    "frame_points",
     "MAX_PIXELS",
 ]
 
@@ -70,30 +83,31 @@ __all__ = [
 class Camera:
     """Pinhole camera.  Array fields are pytree leaves; the resolution is static.
 
+    Build one with :func:`camera_from_degrees`, :func:`look_at`, :func:`frame_points`,
+    :func:`camera_from_opencv` or :func:`camera_from_c2w`; every field is a leaf that
+    ``grad`` and ``vmap`` see (a pose, a focal length or a principal point can be fitted).
+
     Attributes:
         position: (3,) float32 world position of the eye.
-        yaw: () radians about +y; 0 looks along +z.
-        pitch: () radians, positive looks up.
-        roll: () radians about the view axis.
-        fov_y: () vertical field of view in radians, in (0, pi).
+        rotation: (4,) quaternion ``(w, x, y, z)``, any non-zero length: the rotation
+            from OpenCV camera axes (right, down, forward) to the world.
+        focal: (2,) ``(fx, fy)`` focal lengths in pixels, > 0.
+        principal: (2,) ``(cx, cy)`` principal point in pixels from the image's top-left
+            corner (``(width / 2, height / 2)`` for a centred one).
         near: () near clipping distance along the view axis, > 0.
         far: () far clipping distance, > near.
         width: static int, image width in pixels.
         height: static int, image height in pixels.
-        pixel_aspect: static float, pixel width / pixel height (1 = square;
-            0.5 for the thesis's 2x1 AA frame, see :func:`supersampled`).
     """
 
     position: jax.Array
-    yaw: jax.Array
-    pitch: jax.Array
-    roll: jax.Array
-    fov_y: jax.Array
+    rotation: jax.Array
+    focal: jax.Array
+    principal: jax.Array
     near: jax.Array
     far: jax.Array
     width: int = static_field(640)
     height: int = static_field(480)
-    pixel_aspect: float = static_field(1.0)
 
     def __post_init__(self):
         # Lists and tuples become float32 arrays, so a camera written by hand
@@ -108,8 +122,35 @@ class Camera:
         """Image shape ``(height, width)``."""
         return (self.height, self.width)
 
+    @property
+    def fov_y(self) -> jax.Array:
+        """Vertical field of view in radians, ``2 atan(height / (2 fy))``."""
+        return 2.0 * jnp.arctan(0.5 * self.height / jnp.asarray(self.focal)[..., 1])
 
-_FLOAT_FIELDS = ("position", "yaw", "pitch", "roll", "fov_y", "near", "far")
+    @property
+    def pixel_aspect(self) -> jax.Array:
+        """Pixel width / pixel height, ``fy / fx`` (0.5 in the thesis's 2x1 AA frame)."""
+        f = jnp.asarray(self.focal)
+        return f[..., 1] / f[..., 0]
+
+    @property
+    def yaw(self) -> jax.Array:
+        """Radians about +y (see :func:`yaw_pitch_roll`)."""
+        return yaw_pitch_roll(self)[0]
+
+    @property
+    def pitch(self) -> jax.Array:
+        """Radians, positive looking up (see :func:`yaw_pitch_roll`)."""
+        return yaw_pitch_roll(self)[1]
+
+    @property
+    def roll(self) -> jax.Array:
+        """Radians about the view axis (see :func:`yaw_pitch_roll`)."""
+        return yaw_pitch_roll(self)[2]
+
+
+_FLOAT_FIELDS = ("position", "rotation", "focal", "principal", "near", "far")
+_VECTOR_SIZES = {"position": 3, "rotation": 4, "focal": 2, "principal": 2}
 
 
 def as_float32(cam: Camera) -> Camera:
@@ -121,9 +162,10 @@ def validate_camera(cam: Camera, *, where: str | None = None) -> Camera:
     """Checks a camera; raises ``TypeError``/``ValueError`` naming the field.
 
     Types, shapes and the resolution are checked on abstract values too, so the checks
-    hold inside ``jit``; values (finite, ``fov_y`` in (0, pi), ``0 < near < far``) where
-    they are concrete, and for traced cameras inside :func:`~jaxgfx.checks.checked` while the
-    program runs.  A batched camera (leading axes, :func:`stack_cameras`) is accepted.
+    hold inside ``jit``; values (finite, ``focal > 0``, a non-zero ``rotation``,
+    ``0 < near < far``) where they are concrete, and for traced cameras inside
+    :func:`~jaxgfx.checks.checked` while the program runs.  A batched camera (leading
+    axes, :func:`stack_cameras`) is accepted.
 
     Args:
         cam: the camera.
@@ -137,11 +179,6 @@ def validate_camera(cam: Camera, *, where: str | None = None) -> Camera:
     if not isinstance(cam, Camera):
         raise TypeError(f"cam must be a jaxgfx Camera, got {type(cam).__name__}")
     check_pixels(cam.width, cam.height)
-    pa = cam.pixel_aspect
-    if isinstance(pa, bool) or not isinstance(pa, (int, float, np.integer, np.floating)):
-        raise TypeError(f"camera pixel_aspect must be a float, got {type(pa).__name__}")
-    if not (math.isfinite(pa) and pa > 0):
-        raise ValueError(f"camera pixel_aspect must be finite and > 0, got {pa}")
     for name in _FLOAT_FIELDS:
         value = getattr(cam, name)
         try:
@@ -153,18 +190,23 @@ def validate_camera(cam: Camera, *, where: str | None = None) -> Camera:
         if not jnp.issubdtype(dtype, jnp.number) or jnp.issubdtype(dtype, jnp.complexfloating):
             raise TypeError(f"camera {name} must be real numbers, got {dtype}")
         shape = np.shape(value)
-        if name == "position" and (len(shape) < 1 or shape[-1] != 3):
-            raise ValueError(f"camera position must have shape (3,), got {shape}")
+        size = _VECTOR_SIZES.get(name)
+        if size is not None and (len(shape) < 1 or shape[-1] != size):
+            raise ValueError(f"camera {name} must have shape ({size},), got {shape}")
         if isinstance(value, jax.core.Tracer):
             continue
         arr = np.asarray(value)
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"camera {name} must be finite, got {arr}")
-    if not isinstance(cam.fov_y, jax.core.Tracer):
-        fov = np.asarray(cam.fov_y)
-        if np.any(fov <= 0) or np.any(fov >= math.pi):
+    if not isinstance(cam.focal, jax.core.Tracer):
+        focal = np.asarray(cam.focal)
+        if np.any(focal <= 0):
+            raise ValueError(f"camera focal (fx, fy) must be > 0 pixels, got {focal}")
+    if not isinstance(cam.rotation, jax.core.Tracer):
+        norm = np.linalg.norm(np.asarray(cam.rotation, np.float64), axis=-1)
+        if np.any(norm < 1e-6):
             raise ValueError(
-                f"camera fov_y must be in (0, pi) radians, got {fov} ({np.degrees(fov)} degrees)"
+                f"camera rotation must be a non-zero quaternion (w, x, y, z), got norm {norm}"
             )
     if not isinstance(cam.near, jax.core.Tracer) and not isinstance(cam.far, jax.core.Tracer):
         near, far = np.asarray(cam.near), np.asarray(cam.far)
@@ -185,11 +227,70 @@ def _require_camera_values(cam: Camera, where: str | None) -> None:
         return
     for name in _FLOAT_FIELDS:
         require_finite(f"cam.{name}", getattr(cam, name), where)
-    fov = jnp.asarray(cam.fov_y)
-    require_values("cam.fov_y", (fov > 0) & (fov < math.pi), fov, "{} is outside (0, pi)", where)
+    focal = jnp.asarray(cam.focal)
+    require_values("cam.focal", focal > 0, focal, "{} must be > 0", where)
+    q = jnp.asarray(cam.rotation)
+    norm = jnp.sqrt(jnp.sum(q * q, axis=-1))
+    require_values("cam.rotation", norm >= 1e-6, norm, "has norm {}, not a rotation", where)
     near, far = jnp.asarray(cam.near), jnp.asarray(cam.far)
     require_values("cam.near", near > 0, near, "{} must be > 0", where)
     require_values("cam.far", far > near, far, "{} must be > near", where)
+
+
+def yaw_pitch_roll(cam: Camera) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The camera's yaw, pitch and roll in radians (inverse of :func:`yaw_pitch_roll_rotation`).
+
+    Looking straight up or down, yaw and roll are not separable; yaw is then 0.  Works on a
+    batched camera (each angle has the batch's shape).
+    """
+    right, up, forward = camera_basis(cam)
+    level = jnp.hypot(forward[..., 0], forward[..., 2]) > 1e-6
+    pitch = jnp.arcsin(jnp.clip(forward[..., 1], -1.0, 1.0))
+    yaw = jnp.where(level, jnp.arctan2(forward[..., 0], forward[..., 2]), 0.0)
+    # Straight up or down the roll is the image's turn from yaw 0: read it from right.
+    roll_level = jnp.arctan2(-right[..., 1], up[..., 1])
+    roll_vertical = jnp.arctan2(-right[..., 2], -right[..., 0]) * jnp.sign(forward[..., 1])
+    roll = jnp.where(level, roll_level, roll_vertical)
+    return yaw, pitch, roll
+
+
+def camera_basis(cam: Camera) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Right, up and forward unit vectors of the camera in world space.
+
+    Columns of :func:`rotation_matrix` of ``cam.rotation`` (up is minus OpenCV's down):
+    finite and smooth for every orientation, straight up and down included.
+
+    Returns:
+        ``(right, up, forward)``, each (3,) (or the camera's batch shape + (3,)).
+    """
+    m = rotation_matrix(cam.rotation)
+    return m[..., 0], -m[..., 1], m[..., 2]
+
+
+def focal_length(cam: Camera) -> jax.Array:
+    """Vertical focal length in pixels, ``fy`` (``(height / 2) / tan(fov_y / 2)``)."""
+    return jnp.asarray(cam.focal)[..., 1]
+
+
+def focal_lengths(cam: Camera) -> tuple[jax.Array, jax.Array]:
+    """Horizontal and vertical focal lengths in pixels, ``(fx, fy)``."""
+    f = jnp.asarray(cam.focal)
+    return f[..., 0], f[..., 1]
+
+
+def _principal(cam: Camera) -> tuple[jax.Array, jax.Array]:
+    c = jnp.asarray(cam.principal)
+    return c[..., 0], c[..., 1]
+
+
+def intrinsics_matrix(cam: Camera) -> jax.Array:
+    """The OpenCV intrinsics ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (3, 3)."""
+    fx, fy = focal_lengths(cam)
+    cx, cy = _principal(cam)
+    zero, one = jnp.zeros_like(fx), jnp.ones_like(fx)
+    return jnp.stack(
+        [jnp.stack([fx, zero, cx]), jnp.stack([zero, fy, cy]), jnp.stack([zero, zero, one])]
+    )
 
 
 def camera_from_degrees(
@@ -202,6 +303,8 @@ def camera_from_degrees(
     height: int = 480,
     near: float = 0.05,
     far: float = 1e4,
+    *,
+    principal=None,
 ) -> Camera:
     """Builds a validated :class:`Camera` from angles in degrees.
 
@@ -210,11 +313,12 @@ def camera_from_degrees(
         yaw: degrees about +y, 0 looks along +z.
         pitch: degrees, positive looks up.
         roll: degrees about the view axis.
-        fov: vertical field of view in degrees.
+        fov: vertical field of view in degrees; pixels are square (``fx = fy``).
         width: image width in pixels.
         height: image height in pixels.
         near: near plane distance.
         far: far plane distance.
+        principal: (2,) principal point ``(cx, cy)`` in pixels; the image centre if None.
     """
     width, height = check_pixels(width, height)
     fov = check_float("fov", fov)
@@ -223,75 +327,58 @@ def camera_from_degrees(
     pos = np.asarray(position, dtype=np.float32)
     if pos.shape != (3,):
         raise ValueError(f"position must have shape (3,), got {pos.shape}")
-    f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
+    f = 0.5 * height / math.tan(math.radians(fov) / 2)
+    # float64 NumPy: the constructor rounds once, to float32, and compiles nothing.
+    y, p, r = (
+        np.float64(math.radians(check_float(n, v)))
+        for n, v in (("yaw", yaw), ("pitch", pitch), ("roll", roll))
+    )
+    q = quaternion_of_angles(y, p, r, np)
     cam = Camera(
         position=jnp.asarray(pos),
-        yaw=f32(math.radians(yaw)),
-        pitch=f32(math.radians(pitch)),
-        roll=f32(math.radians(roll)),
-        fov_y=f32(math.radians(fov)),
-        near=f32(near),
-        far=f32(far),
+        rotation=jnp.asarray(q, jnp.float32),
+        focal=jnp.asarray([f, f], jnp.float32),
+        principal=_principal_arg(principal, width, height),
+        near=jnp.asarray(near, jnp.float32),
+        far=jnp.asarray(far, jnp.float32),
         width=width,
         height=height,
     )
     return validate_camera(cam)
 
 
-def camera_basis(cam: Camera) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Right, up and forward unit vectors of the camera in world space.
-
-    The basis stays finite and smooth for a camera looking straight up or
-    down: it is built from yaw/pitch/roll rotations, not from a cross product
-    with the world up vector.
-
-    Returns:
-        ``(right, up, forward)``, each (3,).
-    """
-    cy, sy = jnp.cos(cam.yaw), jnp.sin(cam.yaw)
-    cp, sp = jnp.cos(cam.pitch), jnp.sin(cam.pitch)
-    cr, sr = jnp.cos(cam.roll), jnp.sin(cam.roll)
-    forward = jnp.stack([sy * cp, sp, cy * cp])
-    # Level right/up for this yaw; x-right on screen maps to -x world at yaw 0
-    # because the world is right-handed with y up and the view looks along +z.
-    right0 = jnp.stack([-cy, jnp.zeros_like(cy), sy])
-    up0 = jnp.stack([-sy * sp, cp, -cy * sp])
-    right = cr * right0 - sr * up0
-    up = sr * right0 + cr * up0
-    return right, up, forward
-
-
-def focal_length(cam: Camera) -> jax.Array:
-    """Vertical focal length in pixels: ``(height / 2) / tan(fov_y / 2)``."""
-    return 0.5 * cam.height / jnp.tan(0.5 * cam.fov_y)
-
-
-def focal_lengths(cam: Camera) -> tuple[jax.Array, jax.Array]:
-    """Horizontal and vertical focal lengths in pixels, ``(f / pixel_aspect, f)``."""
-    f = focal_length(cam)
-    return f / cam.pixel_aspect, f
+def _principal_arg(principal, width: int, height: int) -> jax.Array:
+    if principal is None:
+        return jnp.asarray([0.5 * width, 0.5 * height], jnp.float32)
+    c = np.asarray(principal, np.float64)
+    if c.shape != (2,) or not np.all(np.isfinite(c)):
+        raise ValueError(f"principal must be a finite (cx, cy) pair, got {principal!r}")
+    return jnp.asarray(c, jnp.float32)
 
 
 def supersampled(cam: Camera, factor: tuple[int, int]) -> Camera:
-    """The same view on a grid ``factor = (fx, fy)`` times finer (anti-aliasing).
+    """The same view on a grid ``factor = (sx, sy)`` times finer (anti-aliasing).
 
-    The frame is ``fx W x fy H`` pixels of ``1 / fx`` by ``1 / fy`` of the
-    original pixel, so :func:`jaxgfx.post.antialias` with the same factor
-    gives back a ``W x H`` image of the original view.  ``(2, 1)`` is the
-    thesis's 2x1 AA (pixels half as wide, 4.5.6.2), ``(2, 2)`` 2x2 AA.
+    The frame is ``sx W x sy H`` pixels of ``1 / sx`` by ``1 / sy`` of the original
+    pixel (focal lengths and principal point scaled alike), so
+    :func:`jaxgfx.post.antialias` with the same factor gives back a ``W x H`` image of
+    the original view.  ``(2, 1)`` is the thesis's 2x1 AA (pixels half as wide,
+    4.5.6.2), ``(2, 2)`` 2x2 AA.
     """
     try:
-        fx, fy = (int(v) for v in factor)
+        sx, sy = (int(v) for v in factor)
     except (TypeError, ValueError):
         raise TypeError(f"factor must be a pair of ints, got {factor!r}") from None
-    if fx < 1 or fy < 1:
+    if sx < 1 or sy < 1:
         raise ValueError(f"factor must be positive, got {factor}")
+    scale = jnp.asarray([sx, sy], jnp.float32)
     return validate_camera(
         dataclasses.replace(
             cam,
-            width=cam.width * fx,
-            height=cam.height * fy,
-            pixel_aspect=cam.pixel_aspect * fy / fx,
+            width=cam.width * sx,
+            height=cam.height * sy,
+            focal=jnp.asarray(cam.focal) * scale,
+            principal=jnp.asarray(cam.principal) * scale,
         )
     )
 
@@ -333,10 +420,11 @@ def camera_to_screen(cam: Camera, p_cam: jax.Array) -> jax.Array:
     the depth.
     """
     fx, fy = focal_lengths(cam)
+    cx, cy = _principal(cam)
     z = p_cam[..., 2]
     safe_z = jnp.where(jnp.abs(z) > 1e-12, z, 1e-12)
-    sx = 0.5 * cam.width + fx * p_cam[..., 0] / safe_z
-    sy = 0.5 * cam.height - fy * p_cam[..., 1] / safe_z
+    sx = cx + fx * p_cam[..., 0] / safe_z
+    sy = cy - fy * p_cam[..., 1] / safe_z
     return jnp.stack([sx, sy], axis=-1)
 
 
@@ -346,13 +434,14 @@ def screen_to_camera(cam: Camera, sx, sy) -> tuple[jax.Array, jax.Array]:
     Screen x coordinates ``sx`` and y coordinates ``sy`` (any shapes, not
     broadcast against each other) map to the camera-space ``x / z`` and
     ``y / z`` of their rays.  Every pixel-ray construction uses this, so
-    ``pixel_aspect`` is honoured in one place.
+    the intrinsics are honoured in one place.
     """
     fx, fy = focal_lengths(cam)
+    cx, cy = _principal(cam)
     # One reciprocal, multiplied: XLA rewrites a division by a broadcast value so in
     # some programs (a vmapped batch of cameras) and not in others, and the rays'
     # last bits would then depend on the program.
-    return (sx - 0.5 * cam.width) * (1.0 / fx), (0.5 * cam.height - sy) * (1.0 / fy)
+    return (sx - cx) * (1.0 / fx), (cy - sy) * (1.0 / fy)
 
 
 def project(cam: Camera, points: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -391,19 +480,21 @@ def pixel_rays(cam: Camera, normalize: bool = True) -> tuple[jax.Array, jax.Arra
 
 
 def projection_matrix(cam: Camera) -> jax.Array:
-    """4x4 camera -> clip matrix (OpenGL-style NDC in [-1, 1], z forward).
+    """4x4 camera -> clip matrix (OpenGL-style NDC in [-1, 1], y up, z forward).
 
-    ``clip = P @ [x, y, z, 1]``; ``ndc = clip[:3] / clip[3]`` with ``clip[3] = z``.
+    ``clip = P @ [x, y, z, 1]``; ``ndc = clip[:3] / clip[3]`` with ``clip[3] = z``; NDC
+    x = -1 is the image's left edge and y = +1 its top, for any principal point.
     """
-    aspect = cam.width * cam.pixel_aspect / cam.height
-    t = 1.0 / jnp.tan(0.5 * cam.fov_y)
+    fx, fy = focal_lengths(cam)
+    cx, cy = _principal(cam)
+    W, H = float(cam.width), float(cam.height)
     n, fa = cam.near, cam.far
-    zero = jnp.zeros_like(t)
-    one = jnp.ones_like(t)
+    zero = jnp.zeros_like(fx)
+    one = jnp.ones_like(fx)
     return jnp.stack(
         [
-            jnp.stack([t / aspect, zero, zero, zero]),
-            jnp.stack([zero, t, zero, zero]),
+            jnp.stack([2.0 * fx / W, zero, (2.0 * cx - W) / W, zero]),
+            jnp.stack([zero, 2.0 * fy / H, (H - 2.0 * cy) / H, zero]),
             jnp.stack([zero, zero, (fa + n) / (fa - n), -2 * fa * n / (fa - n)]),
             jnp.stack([zero, zero, one, zero]),
         ]
@@ -477,105 +568,7 @@ def stack_cameras(cams) -> Camera:
     cams = list(cams)
     if not cams:
         raise ValueError("stack_cameras: need at least one camera")
-    shapes = {(c.width, c.height, c.pixel_aspect) for c in cams}
+    shapes = {(c.width, c.height) for c in cams}
     if len(shapes) != 1:
-        raise ValueError(
-            f"stack_cameras: cameras differ in (width, height, pixel_aspect) {sorted(shapes)}"
-        )
+        raise ValueError(f"stack_cameras: cameras differ in (width, height) {sorted(shapes)}")
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *cams)
-
-
-def frame_points(
-    points,
-    view=(0.0, 0.35, 1.0),
-    fov: float = 45.0,
-    width: int = 640,
-    height: int = 480,
-    *,
-    margin: float = 0.05,
-    half_size: float = 0.0,
-) -> Camera:
-    """The camera looking along ``-view`` nearest to a subject that still shows all of it.
-
-    The view direction and the field of view are given; the eye is placed so that every
-    point projects inside the frame with ``margin`` of the frame left free on each side,
-    and the subject is centred where the fit leaves room.  The fit is exact for a
-    perspective camera, not a bounding sphere's approximation: with
-    ``(r, u, f)`` the camera basis and ``t = tan(fov_x / 2) (1 - 2 margin)``, a point
-    ``p`` lies inside horizontally when ``|p.r - a| <= t (p.f - c)`` for the eye
-    ``a r + b u + c f``; the nearest ``c`` meeting both sides for every point is
-    ``c = -(A+ + A-) / (2 t)`` with ``A+- = max(+-p.r - t p.f)``, and ``a = (A+ - A-) / 2``
-    centres the subject; the same holds vertically, and the eye takes the smaller ``c``.
-
-    Args:
-        points: (N, 3) world points of the subject (a mesh's vertices, voxel centres).
-        view: (3,) direction from the subject towards the eye, any length; y up.
-        fov: vertical field of view in degrees, in (0, 180).
-        width: image width in pixels.
-        height: image height in pixels.
-        margin: share of the frame's width and height left free on each side, in
-            [0, 0.45].
-        half_size: each point stands for an axis-aligned cube of this half edge (0.5 for
-            unit voxels at their centres); the whole cube is framed.
-
-    Returns:
-        A validated :class:`Camera` (no roll) whose near and far planes bracket the
-        subject (near half its nearest depth, far twice its farthest).
-
-    Raises:
-        ValueError: no points, non-finite points, ``view`` of zero length, ``fov``
-            outside (0, 180) degrees (e.g. radians passed by mistake: ``fov`` < 1 is
-            refused as implausible), or ``margin`` outside [0, 0.45].
-    """
-    width = check_int("width", width, low=1)
-    height = check_int("height", height, low=1)
-    p = np.asarray(points, np.float64).reshape(-1, 3)
-    if len(p) == 0:
-        raise ValueError("frame_points: points is empty; there is nothing to frame")
-    if not np.all(np.isfinite(p)):
-        raise ValueError("frame_points: points must be finite")
-    if not (isinstance(fov, (int, float, np.integer, np.floating)) and 1.0 <= fov < 180.0):
-        raise ValueError(
-            f"frame_points: fov is the vertical field of view in degrees, in [1, 180), got "
-            f"{fov!r}" + (" (radians? pass degrees)" if 0 < float(fov) < 1.0 else "")
-        )
-    if not 0.0 <= margin <= 0.45:
-        raise ValueError(f"frame_points: margin must be in [0, 0.45], got {margin}")
-    if not (math.isfinite(half_size) and half_size >= 0):
-        raise ValueError(f"frame_points: half_size must be finite and >= 0, got {half_size}")
-    v = np.asarray(view, np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
-        raise ValueError(f"frame_points: view must be a non-zero finite 3-vector, got {view!r}")
-    v = v / np.linalg.norm(v)
-    # The orientation of a camera looking along -view (look_at's yaw and pitch).
-    yaw = math.degrees(math.atan2(-v[0], -v[2])) if np.hypot(v[0], v[2]) > 1e-12 else 0.0
-    pitch = math.degrees(math.asin(float(np.clip(-v[1], -1.0, 1.0))))
-    probe = camera_from_degrees(np.zeros(3), yaw, pitch, 0.0, fov, width, height)
-    right, up, forward = (np.asarray(b, np.float64) for b in camera_basis(probe))
-    shrink = 1.0 - 2.0 * margin
-    ty = math.tan(math.radians(fov) / 2) * shrink
-    tx = ty * width / height
-    pr, pu, pf = p @ right, p @ up, p @ forward
-
-    def reach(w: np.ndarray) -> float:
-        # max over each point's cube of the linear function w: centre value + h |w|_1
-        return float(half_size * np.abs(w).sum())
-
-    def fit(ps: np.ndarray, axis: np.ndarray, t: float) -> tuple[float, float]:
-        hi = float(np.max(ps - t * pf) + reach(axis - t * forward))
-        lo = float(np.max(-ps - t * pf) + reach(-axis - t * forward))
-        return -(hi + lo) / (2.0 * t), (hi - lo) / 2.0
-
-    cx, a = fit(pr, right, tx)
-    cy, b = fit(pu, up, ty)
-    extent = float(np.linalg.norm(p.max(0) - p.min(0))) + 2.0 * math.sqrt(3.0) * half_size
-    scale = max(extent, 1e-6)
-    near_f = float(np.min(pf)) - half_size * np.abs(forward).sum()
-    # A subject with no extent across the view puts the eye on it: keep a little distance.
-    c = min(cx, cy, near_f - 0.01 * scale)
-    eye = a * right + b * up + c * forward
-    depth_lo = max(near_f - c, 1e-6 * scale)
-    depth_hi = float(np.max(pf)) + half_size * np.abs(forward).sum() - c
-    return camera_from_degrees(
-        eye, yaw, pitch, 0.0, fov, width, height, 0.5 * depth_lo, 2.0 * depth_hi + 1e-6 * scale
-    )

@@ -247,7 +247,7 @@ def require_values(name: str, ok, x, rule: str, where: str | None = None) -> Non
     :func:`checking` only, so that the default programs hold no trace of it).
 
     Args:
-        name: the argument, e.g. ``"cam.fov_y"``.
+        name: the argument, e.g. ``"cam.focal"``.
         ok: bool array, one per element of ``x`` (any shape).
         x: the values; the first one failing replaces ``{}`` in ``rule``.
         rule: what is wrong, e.g. ``"{} is outside (0, pi)"`` or

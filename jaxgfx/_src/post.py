@@ -48,7 +48,7 @@ def antialias(color, depth, factor: tuple[int, int] = (2, 1)):
     The thesis's 2x1 AA renders the *same view* with twice the horizontal
     samples (pixels half as wide as tall) and averages horizontal pairs.
     Render the frame with ``jaxgfx.camera.supersampled(cam, factor)`` (same
-    view, ``pixel_aspect`` scaled) and pass it here with the same factor.
+    view, focal lengths and principal point scaled) and pass it here with the same factor.
 
     Args:
         color: (H * fy, W * fx, C).

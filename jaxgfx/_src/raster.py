@@ -359,11 +359,12 @@ def rasterize(
     Gradients:
         ``depth``, ``bary`` and ``color`` are differentiable (forward and reverse mode)
         with respect to ``vertices``, ``attributes`` and the camera's float fields
-        (position, angles, fov) wherever coverage does not change: the visible face of
-        each pixel is found without gradients, then the pixel's ray is intersected with
-        that face differentiably.  Coverage itself is piecewise constant, so moving an
-        edge across a pixel has no derivative here; for images whose silhouettes have
-        gradients with respect to vertices and camera, pass this output to
+        (position, rotation, focal lengths, principal point) wherever coverage does not
+        change: the visible face of each pixel is found without gradients, then the
+        pixel's ray is intersected with that face differentiably.  Coverage itself is
+        piecewise constant, so moving an edge across a pixel has no derivative here; for
+        images whose silhouettes have gradients with respect to vertices and camera,
+        pass this output to
         :func:`jaxgfx.silhouette.analytic_antialias`.  ``near``/``far`` act only through
         coverage and get zero gradient; at grazing faces (ray almost in the face's plane)
         the depth falls back to the z-buffer's and its gradient is zero.
@@ -372,7 +373,7 @@ def rasterize(
         ValueError: bad shapes or static arguments (also inside ``jit``), bad values of
             concrete inputs, and of traced ones inside :func:`~jaxgfx.checks.checked`:
             non-finite vertices, attributes or camera fields, face indices out of range,
-            ``fov_y`` outside (0, pi), ``near <= 0`` or ``far <= near``.
+            a focal length <= 0, a zero rotation, ``near <= 0`` or ``far <= near``.
         TypeError: bad dtypes or types of static arguments.
     """
     check_int("block", block, low=1)

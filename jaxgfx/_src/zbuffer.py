@@ -165,8 +165,9 @@ def triangle_setup(
     flx, fly = focal_lengths(cam)
     x, y, z = tris.verts[0], tris.verts[1], tris.verts[2]  # (3 corners, T)
     z = jnp.where(tris.valid, z, 1.0)
-    sx = jnp.where(tris.valid, 0.5 * cam.width + flx * x / z, 0.0)
-    sy = jnp.where(tris.valid, 0.5 * cam.height - fly * y / z, 0.0)
+    cx, cy = cam.principal[0], cam.principal[1]
+    sx = jnp.where(tris.valid, cx + flx * x / z, 0.0)
+    sy = jnp.where(tris.valid, cy - fly * y / z, 0.0)
     qx = jnp.stack([sx[1], sx[2], sx[0]])  # edge i: p_i -> p_{i+1}
     qy = jnp.stack([sy[1], sy[2], sy[0]])
     # Canonical direction: start at the endpoint lower on screen (larger y),

@@ -86,10 +86,10 @@ def projected_extent(cam, points) -> tuple[int, float, tuple[float, float, float
     front = z > float(cam.near)
     if not front.any():
         return 0, 0.0, (0.0, 0.0, 0.0, 0.0)
-    fy = 0.5 * cam.height / math.tan(0.5 * float(cam.fov_y))
-    fx = fy / cam.pixel_aspect
-    sx = 0.5 * cam.width + fx * (p[front] @ r) / z[front]
-    sy = 0.5 * cam.height - fy * (p[front] @ u) / z[front]
+    fx, fy = (float(v) for v in np.asarray(cam.focal))
+    cx, cy = (float(v) for v in np.asarray(cam.principal))
+    sx = cx + fx * (p[front] @ r) / z[front]
+    sy = cy - fy * (p[front] @ u) / z[front]
     box = (float(sx.min()), float(sy.min()), float(sx.max()), float(sy.max()))
     return int(front.sum()), max(box[2] - box[0], box[3] - box[1]), box
 

@@ -283,11 +283,12 @@ def _check_image_inputs(skin_fn, poses, faces, cameras, targets, init_style):
         raise ValueError("init_style textures and curves must be > 0 (log parametrization)")
     if not isinstance(cameras, Camera):
         raise TypeError("cameras must be a Camera batch (use jaxgfx.camera.stack_cameras)")
-    if np.ndim(cameras.yaw) != 1:
+    if np.ndim(cameras.position) != 2:
         raise ValueError(
-            f"cameras must be stacked with a leading axis C, got yaw shape {np.shape(cameras.yaw)}"
+            "cameras must be stacked with a leading axis C, got position shape "
+            f"{np.shape(cameras.position)}"
         )
-    n_cam = np.shape(cameras.yaw)[0]
+    n_cam = np.shape(cameras.position)[0]
     for k in range(n_cam):
         validate_camera(jax.tree_util.tree_map(lambda a, k=k: a[k], cameras))
     if not isinstance(targets, ImageTargets):

@@ -95,7 +95,7 @@ def vanishing_point(cam: Camera) -> jax.Array:
     """
     right, up, forward = camera_basis(cam)
     fx, fy = focal_lengths(cam)
-    cx, cy = 0.5 * cam.width, 0.5 * cam.height
+    cx, cy = cam.principal[0], cam.principal[1]
     w = forward[1]
     return jnp.stack([cx * w + fx * right[1], cy * w - fy * up[1], w])
 
@@ -143,8 +143,8 @@ def scene_rect(cam: Camera, shape) -> tuple[jax.Array, jax.Array]:
     fx, fy = focal_lengths(cam)
     front = jnp.all(zc > 1e-3)
     zs = jnp.where(front, zc, 1.0)
-    xs = 0.5 * cam.width + fx * (rel @ right) / zs
-    ys = 0.5 * cam.height - fy * (rel @ up) / zs
+    xs = cam.principal[0] + fx * (rel @ right) / zs
+    ys = cam.principal[1] - fy * (rel @ up) / zs
     W, H = float(cam.width), float(cam.height)
     # Whole pixels (planes stay on pixel centres, see Segments.phase) and one
     # of margin: a plane on the box's image edge still sees its border voxels.
@@ -374,9 +374,9 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
     w = vp_h[2]
     sw = _sgn_w(w)
     right, up, forward = camera_basis(cam)
-    _, fy = focal_lengths(cam)
-    pa = cam.pixel_aspect
-    cx, cy = 0.5 * cam.width, 0.5 * cam.height
+    fx, fy = focal_lengths(cam)
+    pa = fy / fx
+    cx, cy = cam.principal[0], cam.principal[1]
     per = []
     for k in range(4):
         size_a, size_b, a_ref, vertical, neg = _seg_axes(cam, k)
@@ -399,7 +399,7 @@ def plane_extent(cam: Camera, seg: Segments, plane: jax.Array, *, rows: int):
         rv = (right[0] * h[0] + right[2] * h[1]) if v is None else right[1]
         uv = (up[0] * h[0] + up[2] * h[1]) if v is None else up[1]
         fv = (forward[0] * h[0] + forward[2] * h[1]) if v is None else forward[1]
-        rv = rv * pa  # / fx = * pixel_aspect / fy
+        rv = rv * pa  # / fx = * (fy / fx) / fy
         return (bx * rv - by * uv) / fy, ((cx0 - cx) * rv + (cy - cy0) * uv) / fy + fv
 
     lo = jnp.int32(0)

@@ -197,12 +197,9 @@ def _plane_init(rle, cam: Camera, seg: Segments, plane, *, rows: int, n_words: i
     hr = right[0] * hx + right[2] * hz
     hu = up[0] * hx + up[2] * hz
     hf = forward[0] * hx + forward[2] * hz
-    p_num = jnp.where(vertical, 0.5 * cam.height * hf - fy * hu, 0.5 * cam.width * hf + fx * hr)
-    q_num = jnp.where(
-        vertical,
-        0.5 * cam.height * forward[1] - fy * up[1],
-        0.5 * cam.width * forward[1] + fx * right[1],
-    )
+    cx, cy = cam.principal[0], cam.principal[1]
+    p_num = jnp.where(vertical, cy * hf - fy * hu, cx * hf + fx * hr)
+    q_num = jnp.where(vertical, cy * forward[1] - fy * up[1], cx * forward[1] + fx * right[1])
     # Entry into the map's x-z box (2-D slab test).
     X0, Z0 = float(rle.shape[0]), float(rle.shape[2])
     tx0, tx1 = (0.0 - ex) * inv_x, (X0 - ex) * inv_x
