@@ -357,6 +357,25 @@ def test_render_up_z_stands_a_scan_upright(tmp_path):
     assert np.ptp(rows) > 2.0 * np.ptp(cols)
 
 
+def test_up_alone_suffices_and_render_takes_front(tmp_path, capsys, ico):
+    from jaxgfx import raycast as V
+
+    # a z-up slab, broad along the file's x and z: voxelized facing +z, thin along z
+    path = tmp_path / "slab.ply"
+    trimesh.creation.box(extents=(4.0, 0.5, 3.0)).export(path)
+    scene = tmp_path / "s.npz"
+    assert main(["voxelize", str(path), "--up", "z", "--resolution", "8", "--out", str(scene)]) == 0
+    shape = V.load_scene(str(scene)).shape
+    assert shape[2] == min(shape), shape
+    assert build_parser().parse_args(["render", ico, "--front=-x"]).front == "-x"
+    out = str(tmp_path / "f.png")
+    assert main(["render", ico, "--up", "z", "--front", "z", "--out", out]) == 2
+    assert "--front z is the --up axis (z)" in capsys.readouterr().err
+    argv = ["voxelize", str(path), "--up", "z", "--front", "z", "--resolution", "8"]
+    assert main([*argv, "--out", str(scene)]) == 2
+    assert "--front z is the --up axis (z)" in capsys.readouterr().err
+
+
 def test_host_device_flags():
     from jaxgfx.cli import host_device_flags
 

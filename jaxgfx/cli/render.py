@@ -39,10 +39,13 @@ from jaxgfx.cli.args import (
 )
 from jaxgfx.cli.framing import (
     CHARACTER_VIEW,
+    FRONT_AXES,
     MESH_VIEW,
     camera_text,
     framed_camera,
+    mesh_front,
     orbit_distance,
+    turn_view,
     warn_if_unseen,
 )
 
@@ -65,8 +68,10 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     return 0.5 * (lo + hi), float(np.linalg.norm(hi - lo)) * 0.5 + 1e-6
 
 
-def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=MESH_VIEW):
-    """``--camera`` if given, else the view along ``view`` that frames every vertex."""
+def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=MESH_VIEW, faces=None):
+    """``--camera`` if given, else the view along ``view`` (given for a subject facing +z,
+    turned to the mesh's front: ``--front`` or the rule of :mod:`jaxgfx.cli.framing`) that
+    frames every vertex."""
     from jaxgfx.camera import camera_from_degrees
 
     w, h = args.size
@@ -76,7 +81,14 @@ def _camera_for(vertices: np.ndarray, args: argparse.Namespace, view=MESH_VIEW):
         return camera_from_degrees(
             [x, y, z], yaw, pitch, 0.0, args.fov, w, h, radius * 1e-3, radius * 1e3
         )
-    return framed_camera(vertices, view, args.fov, args.size)
+    front = mesh_front(
+        vertices,
+        np.zeros((0, 3), np.int64) if faces is None else faces,
+        front=getattr(args, "front", None),
+        up=args.up,
+        path=args.mesh,
+    )
+    return framed_camera(vertices, turn_view(view, front), args.fov, args.size)
 
 
 def _is_skinned_glb(path: str) -> bool:
@@ -170,7 +182,7 @@ def run_render(args: argparse.Namespace) -> int:
 
     mp, info, skinned = _load_mesh_pass(args, skinned)
     v, f = np.asarray(mp.vertices), np.asarray(mp.faces)
-    cam = _camera_for(v, args, CHARACTER_VIEW if skinned else MESH_VIEW)
+    cam = _camera_for(v, args, CHARACTER_VIEW if skinned else MESH_VIEW, f)
     t0 = time.perf_counter()
     frame = jax.block_until_ready(_frame_jit()(cam, mp, bool(args.cull)))
     dt = time.perf_counter() - t0
@@ -358,6 +370,15 @@ def register(subparsers) -> None:
         help="seconds into a skinned .glb's animation, within the clip (default: bind pose)",
     )
     add_up_argument(r)
+    r.add_argument(
+        "--front",
+        choices=FRONT_AXES,
+        default=None,
+        help="the file's axis out of the subject's front, where the default camera stands "
+        "(write --front=-y). Default: +z for glTF; else, of the four sides +z, +x, -z, -x "
+        "(after --up), the one the most surface faces (area-weighted normals; for a closed "
+        "mesh its broad side), ties within 2%% going to that order",
+    )
     r.add_argument(
         "--camera",
         type=parse_floats(5, "x,y,z,yaw,pitch"),

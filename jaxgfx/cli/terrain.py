@@ -33,6 +33,12 @@ __all__ = [
     "terrain_from_args",
     "color_heights",
     "snow_line",
+    "map_points",
+    "heightmap_eye",
+    "levels_for_map",
+    "DEFAULT_LEVELS",
+    "HEIGHTMAP_YAW",
+    "HEIGHTMAP_PITCH",
 ]
 
 FUNCTIONS = ("csg", "xor", "saw", "sin", "heightmap:PATH")
@@ -41,6 +47,8 @@ IMAGE_RELIEF_TEXT = "1/8"
 """jaxgfx.terrain.IMAGE_RELIEF in words (the help text is built without importing JAX)."""
 VOXEL_BYTES = 64
 """Rough upper bound of the bytes one Clip-Box voxel costs (density, meshing, smoothing)."""
+DEFAULT_LEVELS = 5
+"""``--levels`` unless a height map's default view needs more to hold the whole map."""
 
 
 def check_args(args) -> None:
@@ -51,10 +59,16 @@ def check_args(args) -> None:
     if args.mesh:
         check_out_file("--mesh", args.mesh, MESH_SUFFIXES)
     check_source_args(args)
-    n, levels = args.resolution, args.levels
+    if args.mesh_level is not None and args.mesh is None:
+        raise CliError("--mesh-level needs --mesh")
+    # --levels left to the height map's view: checked again once the map says how many
+    check_levels(args, DEFAULT_LEVELS if args.levels is None else args.levels)
+
+
+def check_levels(args, levels: int) -> None:
+    """Checks --mesh-level and the memory estimate for ``levels`` nested boxes."""
+    n = args.resolution
     if args.mesh_level is not None:
-        if args.mesh is None:
-            raise CliError("--mesh-level needs --mesh")
         if args.mesh_level >= levels:
             raise CliError(
                 f"--mesh-level must be in [0, {levels - 1}] with --levels {levels}, "
@@ -73,7 +87,7 @@ def check_source_args(args) -> None:
         raise CliError(f"--resolution must be a multiple of 8 and >= 8, got {n}")
     from jaxgfx._src.terrain.clipbox import MAX_LEVEL, max_levels
 
-    if args.levels > max_levels(n):
+    if args.levels is not None and args.levels > max_levels(n):
         raise CliError(
             f"--levels must be <= {max_levels(n)} with --resolution {n} (levels run 0..{MAX_LEVEL} "
             f"and the outer box must fit int32 world coordinates), got {args.levels}"
@@ -150,7 +164,7 @@ def make_terrain(
 
 
 # Views that show each built-in function well: (viewer, (yaw, pitch), height range for
-# the colours).  Height maps stand above the map centre (default_viewer) instead.
+# the colours).  Height maps are framed whole instead (heightmap_eye).
 VIEWS = {
     # rocks and arches over the ground plane, from just above it
     "csg": ((0, 40, 0), (35.0, -10.0), (-128.0, 256.0)),
@@ -165,35 +179,138 @@ VIEWS = {
 INSIDE_BY_DEFAULT = ("sin",)
 
 
-HEIGHTMAP_PITCH = -30.0
-"""Height maps are seen from above their centre, looking down this much..."""
+HEIGHTMAP_YAW = 180.0
+"""Every height map is seen looking north (towards row 0, -z), as a map is read..."""
+HEIGHTMAP_PITCH = -35.0
+"""...this many degrees downwards, from the nearest eye on that line of sight that shows
+the whole map (:func:`heightmap_eye`): it stands south of the map's middle, above or
+beyond its south edge, and looks across the map's middle."""
+MAP_POINTS = 1 << 20
+"""At most about this many samples of a height map are framed (a regular subset of a
+larger map, its border and corners always in)."""
 
 
-def best_yaw(terrain, viewer, reach: float) -> float:
-    """...and north (yaw 180: towards row 0, like a map) unless another compass direction
-    clearly shows more: a 60-degree wedge out to ``reach`` voxels (at most the map's
-    half-size) with a mean ground slope over 1.5x north's."""
+def map_points(terrain):
+    """World points of a height map's surface: its samples (every one up to
+    :data:`MAP_POINTS`, else a regular subset and every border sample) and its four outer
+    corners, at true scale (NumPy, no JAX).
+
+    Args:
+        terrain: a :class:`jaxgfx.terrain.HeightmapTerrain`.
+
+    Returns:
+        (N, 3) float64 world points, y up.
+
+    Raises:
+        TypeError: ``terrain`` is not a height-map terrain.
+    """
     import numpy as np
 
     from jaxgfx import terrain as T
 
+    if not isinstance(terrain, T.HeightmapTerrain):
+        raise TypeError(f"terrain must be a HeightmapTerrain, got {type(terrain).__name__}")
     m = terrain.mapping
-    dist = np.linspace(0.05, 1.0, 32) * min(
-        reach, max(m.shape[1] * m.cells[0], m.shape[0] * m.cells[1]) / 2
+    h = np.asarray(terrain.heights, np.float64)
+    rows, cols = h.shape
+    cx, cz = m.cells
+    step = max(1, math.ceil(math.sqrt(rows * cols / MAP_POINTS)))
+    r = np.union1d(np.arange(0, rows, step), [rows - 1])
+    c = np.union1d(np.arange(0, cols, step), [cols - 1])
+    rr, cc = (a.ravel() for a in np.meshgrid(r, c, indexing="ij"))
+    border = np.concatenate(
+        [
+            np.stack([np.zeros(cols, int), np.arange(cols)], 1),
+            np.stack([np.full(cols, rows - 1), np.arange(cols)], 1),
+            np.stack([np.arange(rows), np.zeros(rows, int)], 1),
+            np.stack([np.arange(rows), np.full(rows, cols - 1)], 1),
+        ]
     )
-    spread = np.linspace(-np.pi / 6, np.pi / 6, 9)
-    score = {}
-    for yaw in range(0, 360, 45):
-        a = np.deg2rad(yaw) + spread[:, None]
-        # yaw 0 looks along +z, yaw 90 along +x (jaxgfx.camera.camera_basis)
-        x = viewer[0] + np.sin(a) * dist
-        z = viewer[2] + np.cos(a) * dist
-        g = np.asarray(T.ground_height(terrain, x, z))
-        gx = np.asarray(T.ground_height(terrain, x + 1.0, z)) - g
-        gz = np.asarray(T.ground_height(terrain, x, z + 1.0)) - g
-        score[yaw] = float(np.hypot(gx, gz).mean())
-    best = max(score, key=lambda y: score[y])
-    return float(best if score[best] > 1.5 * score[180] else 180)
+    rr, cc = np.concatenate([rr, border[:, 0]]), np.concatenate([cc, border[:, 1]])
+    x = m.origin[0] + (cc + 0.5) * cx
+    z = m.origin[1] + (rr + 0.5) * cz
+    pts = np.stack([x, m.base + h[rr, cc], z], 1)
+    x0, x1 = m.origin[0], m.origin[0] + cols * cx
+    z0, z1 = m.origin[1], m.origin[1] + rows * cz
+    corners = np.array(
+        [
+            [x0, m.base + h[0, 0], z0],
+            [x1, m.base + h[0, -1], z0],
+            [x0, m.base + h[-1, 0], z1],
+            [x1, m.base + h[-1, -1], z1],
+        ]
+    )
+    return np.concatenate([pts, corners])
+
+
+def _forward(yaw: float, pitch: float):
+    """The unit direction a camera of ``yaw``, ``pitch`` (degrees) looks along (yaw 0 looks
+    along +z, yaw 90 along +x, positive pitch up: :func:`jaxgfx.camera.camera_basis`)."""
+    import numpy as np
+
+    a, b = math.radians(yaw), math.radians(pitch)
+    return np.array([math.sin(a) * math.cos(b), math.sin(b), math.cos(a) * math.cos(b)])
+
+
+def heightmap_eye(terrain, yaw: float, pitch: float, fov: float, size):
+    """The nearest eye looking at ``yaw``, ``pitch`` that shows the whole height map.
+
+    The map's surface (:func:`map_points`) projects inside the frame with the CLI's margin
+    (:data:`jaxgfx.cli.framing.MARGIN`), centred: :func:`jaxgfx.camera.frame_points`.
+
+    Args:
+        terrain: a :class:`jaxgfx.terrain.HeightmapTerrain`.
+        yaw: degrees about +y (0 looks along +z).
+        pitch: degrees, positive looks up.
+        fov: vertical field of view, degrees.
+        size: (W, H) pixels.
+
+    Returns:
+        (3,) float64 world position of the eye.
+
+    Raises:
+        ValueError: ``yaw`` or ``pitch`` is not finite, or ``pitch`` is not in (-90, 90).
+    """
+    import numpy as np
+
+    from jaxgfx.cli.framing import framed_camera
+
+    if not (math.isfinite(yaw) and math.isfinite(pitch)):
+        raise ValueError(f"yaw and pitch must be finite, got {yaw}, {pitch}")
+    if not -90.0 < pitch < 90.0:
+        raise ValueError(f"pitch must be in (-90, 90) degrees, got {pitch}")
+    cam = framed_camera(map_points(terrain), -_forward(yaw, pitch), fov, size)
+    return np.asarray(cam.position, np.float64)
+
+
+def levels_for_map(terrain, viewer, eye, resolution: int, at_least: int = DEFAULT_LEVELS) -> int:
+    """The fewest nested boxes, ``at_least`` or more, that show a height map whole from
+    ``eye``: the outer box, centred on ``viewer``, holds the whole map and its relief (plus
+    the apron's fade and two outer voxels) and reaches twice as far as the map's farthest
+    point from the eye, so that the flat apron around the map fades into the fog before the
+    box ends; at most :func:`jaxgfx._src.terrain.clipbox.max_levels`.
+
+    Args:
+        terrain: a :class:`jaxgfx.terrain.HeightmapTerrain`.
+        viewer: (3,) the boxes' centre, world voxels.
+        eye: (3,) the eye, world voxels.
+        resolution: voxels per box edge.
+        at_least: the fewest levels returned.
+    """
+    import numpy as np
+
+    from jaxgfx._src.terrain.clipbox import max_levels
+
+    pts = map_points(terrain)
+    hold = float(np.abs(pts - np.asarray(viewer, np.float64)).max())
+    far = float(np.linalg.norm(pts - np.asarray(eye, np.float64), axis=1).max())
+    levels = at_least
+    while levels < max_levels(resolution):
+        reach = resolution * (1 << (levels - 1)) // 2
+        if reach >= max(hold + terrain.mapping.apron_fade + 2 * (1 << levels), 2 * far):
+            break
+        levels += 1
+    return levels
 
 
 def parse_snow_line(text: str) -> float | str | None:
@@ -235,19 +352,32 @@ def color_heights(terrain, function: str) -> tuple[float, float]:
 
 
 def _view(args, terrain):
-    """(viewer, (yaw, pitch), world height range) for ``args``, defaults by function."""
+    """(viewer, (yaw, pitch), world height range, eye) for ``args``, defaults by function.
+
+    ``eye`` is the camera's position relative to ``viewer``, the Clip-Boxes' centre.  A
+    height map's boxes are centred above its middle (unless ``--viewer``), and the eye
+    stands where the whole map is in frame (:func:`heightmap_eye`) looking at
+    :data:`HEIGHTMAP_YAW`, :data:`HEIGHTMAP_PITCH` (or ``--camera``); with ``--viewer`` the
+    eye stands at the viewer.
+    """
+    import numpy as np
+
     from jaxgfx import terrain as T
 
+    eye = np.zeros(3)
     if isinstance(terrain, T.HeightmapTerrain):
         viewer = T.default_viewer(terrain) if args.viewer is None else args.viewer
-        reach = args.resolution * (1 << (args.levels - 1)) // 2
-        camera = (best_yaw(terrain, viewer, reach), HEIGHTMAP_PITCH)
+        camera = (HEIGHTMAP_YAW, HEIGHTMAP_PITCH) if args.camera is None else args.camera
+        if args.viewer is None:
+            with input_errors("--camera"):
+                eye = heightmap_eye(terrain, *camera, args.fov, args.size)
+            eye = eye - np.asarray(viewer, np.float64)
     else:
         viewer, camera, _ = VIEWS[args.function]
         viewer = viewer if args.viewer is None else args.viewer
     heights = color_heights(terrain, args.function)
     camera = camera if args.camera is None else tuple(args.camera)
-    return tuple(int(v) for v in viewer), camera, heights
+    return tuple(int(v) for v in viewer), tuple(float(a) for a in camera), heights, eye
 
 
 def run(args) -> int:
@@ -264,7 +394,16 @@ def run(args) -> int:
 
     with input_errors():
         terrain = terrain_from_args(args)
-    viewer, (yaw, pitch), heights = _view(args, terrain)
+    viewer, (yaw, pitch), heights, eye = _view(args, terrain)
+    if args.levels is None:  # enough boxes to hold a height map seen whole
+        frames_map = isinstance(terrain, T.HeightmapTerrain) and args.viewer is None
+        world_eye = np.asarray(viewer, np.float64) + eye
+        args.levels = (
+            levels_for_map(terrain, viewer, world_eye, args.resolution)
+            if frames_map
+            else DEFAULT_LEVELS
+        )
+        check_levels(args, args.levels)
     if not (args.viewer is None and args.function in INSIDE_BY_DEFAULT):
         try:
             T.check_viewer(terrain, viewer, name="--viewer")
@@ -281,14 +420,16 @@ def run(args) -> int:
     build_s = time.perf_counter() - t0
     levels = T.level_views(state)
     reach = args.resolution * (1 << (args.levels - 1)) // 2  # the outer box's half-width
-    cam = camera_from_degrees((0.0, 0.0, 0.0), yaw, pitch, 0.0, args.fov, w, h, 0.25, 8 * reach)
+    # seen from beyond the boxes, the fog and the far plane start at the eye, not the box
+    span = reach + float(np.linalg.norm(eye))
+    cam = camera_from_degrees(eye, yaw, pitch, 0.0, args.fov, w, h, 0.25, 8 * span)
     t0 = time.perf_counter()
     frame = T.render_terrain(
         cam,
         levels,
         viewer,
         height_range=heights,
-        fog_distance=float(args.fog * reach) if args.fog > 0 else None,
+        fog_distance=float(args.fog * span) if args.fog > 0 else None,
         snow_line=snow_line(args, terrain),
         rasterize_fn=jax.jit(rasterize),
     )
@@ -301,7 +442,9 @@ def run(args) -> int:
         report.update(terrain.mapping.to_dict())
     report.update(
         viewer=list(viewer),
+        eye=[round(float(v), 2) for v in np.asarray(viewer) + eye],
         camera=[yaw, pitch],
+        levels=args.levels,
         triangles=int(T.level_arrays(levels, viewer)[2].shape[0]),
         build_s=round(build_s, 3),
         render_s=round(render_s, 3),
@@ -320,10 +463,12 @@ def run(args) -> int:
     return 0
 
 
-def add_source_arguments(p) -> None:
+def add_source_arguments(p, *, levels_for_maps: bool = False) -> None:
     """The terrain-source, Clip-Box and shading options ``terrain`` and ``flythrough`` share:
     --function (with --seed, --vertical-scale, --cell, --wrap), --resolution, --levels,
-    --smoothing, --fov, --snow-line and --fog; check them with :func:`check_source_args`."""
+    --smoothing, --fov, --snow-line and --fog; check them with :func:`check_source_args`.
+    ``levels_for_maps`` leaves --levels None by default: as many as a height map's default
+    view needs (:func:`levels_for_map`), else :data:`DEFAULT_LEVELS`."""
     p.add_argument(
         "--function",
         default="csg",
@@ -334,7 +479,17 @@ def add_source_arguments(p) -> None:
     p.add_argument(
         "--resolution", type=positive_int, default=64, help="N voxels per box edge (multiple of 8)"
     )
-    p.add_argument("--levels", type=positive_int, default=5, help="number of nested boxes L >= 1")
+    p.add_argument(
+        "--levels",
+        type=positive_int,
+        default=None if levels_for_maps else DEFAULT_LEVELS,
+        help=f"number of nested boxes L >= 1 (default {DEFAULT_LEVELS}"
+        + (
+            "; for a height map without --viewer, enough that the outer box holds the whole map)"
+            if levels_for_maps
+            else ")"
+        ),
+    )
     p.add_argument(
         "--fov", type=parse_fov, default=60.0, help="vertical field of view, degrees in (0, 180)"
     )
@@ -374,8 +529,9 @@ def add_source_arguments(p) -> None:
         "--fog",
         type=bounded_float(0.0, math.inf),
         default=1.0,
-        help="fog distance in outer-box half-widths (1: the box edge fades into the "
-        "horizon; 0: no fog, e.g. for views from above)",
+        help="fog distance in outer-box half-widths, plus the eye's distance from the "
+        "viewer where the eye stands apart (1: the box edge fades into the horizon; 0: no "
+        "fog, e.g. for views from above)",
     )
 
 
@@ -399,8 +555,9 @@ def register(subparsers) -> None:
         "--viewer",
         type=parse_ints(3, "x,y,z"),
         default=None,
-        help="x,y,z integer voxels (y up); default: a view that suits --function "
-        "(height maps: above the map centre)",
+        help="x,y,z integer voxels (y up): the boxes' centre and the eye; default: a view "
+        "that suits --function (height maps: the boxes centred above the map's middle, the "
+        "eye where the whole map is in frame)",
     )
     p.add_argument(
         "--allow-inside",
@@ -415,7 +572,10 @@ def register(subparsers) -> None:
         "--camera",
         type=parse_floats(2, "yaw,pitch"),
         default=None,
-        help="yaw,pitch in degrees (yaw 0 looks along +z); default suits --function",
+        help="yaw,pitch in degrees (yaw 0 looks along +z); default suits --function. A "
+        f"height map is seen at yaw {HEIGHTMAP_YAW:g} (north, towards row 0) and pitch "
+        f"{HEIGHTMAP_PITCH:g} for every file; without --viewer the eye stands on a line of "
+        "sight through the map, as near as the whole map in frame allows",
     )
     p.add_argument("--size", type=parse_size, default=(640, 480), help="WxH")
     p.add_argument(
@@ -429,5 +589,5 @@ def register(subparsers) -> None:
         default=None,
         help="export only this level, 0 (innermost) .. L-1",
     )
-    add_source_arguments(p)
+    add_source_arguments(p, levels_for_maps=True)
     p.set_defaults(func=run)

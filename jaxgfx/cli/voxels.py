@@ -34,19 +34,26 @@ from jaxgfx.cli.args import (
     positive_int,
     writing,
 )
-from jaxgfx.cli.framing import VOXEL_VIEW, camera_text, framed_camera, warn_if_unseen
+from jaxgfx.cli.framing import (
+    FRONT_AXES,
+    VOXEL_VIEW,
+    axis_vector,
+    camera_text,
+    framed_camera,
+    mesh_front,
+    pick_front,
+    voxel_side_areas,
+    warn_if_unseen,
+)
 
 __all__ = ["register", "run_voxelize", "run_render_voxels", "load_input", "face_front"]
 
 UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 """``voxelize --up`` values: a mesh's up axis (x, y, z) or a volume's (any sign)."""
-FRONT_AXES = ("x", "y", "z", "-x", "-y", "-z")
-"""``voxelize --front`` values: the file's axis that points out of the subject's front."""
 VOLUME_FRONT = "-y"
-"""A volume's front by default: the patient coordinates of DICOM and NRRD (LPS: x to the
-patient's left, y to the back, z up) put the face towards -y."""
-MESH_FRONT = "z"
-"""A mesh's front by default: +z, where glTF models and most scans face."""
+"""A volume's front by default, when it is horizontal after ``--up``: the patient
+coordinates of DICOM and NRRD (LPS: x to the patient's left, y to the back, z up) put the
+face towards -y.  Otherwise (and for meshes) the rule of :mod:`jaxgfx.cli.framing`."""
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
 
 
@@ -59,14 +66,6 @@ def _formats() -> str:
         f"{', '.join(SIMPLEITK_SUFFIXES)} with jaxgfx[volumes]), Voxlap worlds and sprites "
         "(.vxl, .kv6), or the word 'tree'"
     )
-
-
-def _axis_vector(axis: str):
-    import numpy as np
-
-    v = np.zeros(3)
-    v["xyz".index(axis[-1])] = -1.0 if axis.startswith("-") else 1.0
-    return v
 
 
 def face_front(coords, shape, front_world):
@@ -95,19 +94,15 @@ def face_front(coords, shape, front_world):
     return np.stack([c[:, 2], c[:, 1], X - 1 - c[:, 0]], 1), (Z, Y, X)
 
 
-def _front_in_world(front: str, up: str, is_volume: bool):
-    """Where the file's ``front`` axis points after ``up`` was turned to +y."""
+def _volume_front_in_world(front: str, up: str):
+    """Where a volume's ``front`` axis points after its ``up`` was turned to +y."""
     import numpy as np
 
-    if is_volume:
-        from jaxgfx._src.voxel.volume import turn_up
+    from jaxgfx._src.voxel.volume import turn_up
 
-        probe = np.zeros((3, 3, 3))
-        probe[tuple(1 + _axis_vector(front).astype(int))] = 1.0
-        return np.argwhere(turn_up(probe, up))[0] - 1.0
-    from jaxgfx.io import up_rotation
-
-    return up_rotation(up) @ _axis_vector(front)
+    probe = np.zeros((3, 3, 3))
+    probe[tuple(1 + axis_vector(front).astype(int))] = 1.0
+    return np.argwhere(turn_up(probe, up))[0] - 1.0
 
 
 _CONVENTIONS = (
@@ -150,9 +145,10 @@ def load_input(
     iso value defaults to Otsu's threshold.  Meshes without vertex colours get one
     clay colour.  ``up`` is the file's up axis (meshes: x, y or z, default y;
     volumes: also -x, -y, -z, default z, the slice axis of a scan).  ``front`` is the
-    file's axis out of the subject's front (default :data:`VOLUME_FRONT` for volumes,
-    :data:`MESH_FRONT` for meshes); the result is turned about y so that it faces +z,
-    where ``render-voxels`` looks from by default.  For a volume, ``report`` (a dict)
+    file's axis out of the subject's front; by default a volume's is :data:`VOLUME_FRONT`
+    when that is horizontal after ``up``, else (and for meshes) the side the rule of
+    :mod:`jaxgfx.cli.framing` picks.  The result is turned about y so that its front
+    faces +z, where ``render-voxels`` looks from by default.  For a volume, ``report`` (a dict)
     receives the ``iso`` value used and the file's ``spacing``.
 
     Raises:
@@ -184,13 +180,17 @@ def load_input(
     if resolution is None and not (is_volume or ext in (".vxl", ".kv6")):
         raise CliError("--resolution is required for meshes and trees")
     up_axis = up or ("z" if is_volume else "y")
-    front_axis = front or (VOLUME_FRONT if is_volume else MESH_FRONT)
-    if not fixed:
-        facing = _front_in_world(front_axis, up_axis, is_volume)
+    facing = None  # decided by the rule once the voxels or vertices are known
+    if is_volume:
+        facing = _volume_front_in_world(front or VOLUME_FRONT, up_axis)
         if abs(facing[1]) > 0.5:
-            raise CliError(
-                f"--front {front_axis} is the --up axis ({up_axis}); name a horizontal axis"
-            )
+            if front is not None:
+                raise CliError(
+                    f"--front {front} is the --up axis ({up_axis}); name a horizontal axis"
+                )
+            facing = None  # --up made the face's axis vertical: the rule decides
+    elif front is not None and not fixed:
+        mesh_front(np.zeros((0, 3)), np.zeros((0, 3), int), front=front, up=up_axis)  # fail early
     if ext in (".vxl", ".kv6"):
         with input_errors():
             return V.load_vxl(str(p)) if ext == ".vxl" else V.load_kv6(str(p))
@@ -217,6 +217,8 @@ def load_input(
             report.update(iso=round(float(iso), 4), spacing=[float(v) for v in spacing])
         # By default volume z (the slice axis of a scan) becomes world y.
         vox = V.volume_to_voxels(vol, iso, up_axis=up_axis, spacing=spacing, resolution=resolution)
+        if facing is None:
+            facing = pick_front(voxel_side_areas(vox.coords))
         coords, shape = face_front(vox.coords, vox.shape, facing)
         return V.make_voxels(coords, vox.colors, shape)
     assert resolution is not None  # required for meshes and trees (checked above)
@@ -231,6 +233,7 @@ def load_input(
     if visual is not None and getattr(visual, "kind", None) == "vertex":
         colors = np.asarray(visual.vertex_colors)[:, :3]
     vertices = np.asarray(mesh.vertices)
+    facing = mesh_front(vertices, np.asarray(mesh.faces), front=front, up=up_axis, path=str(p))
     if facing[2] < 0.5:  # turn the front to +z: a quarter or half turn about y
         a = math.atan2(facing[0], facing[2])
         c, sn = round(math.cos(a)), round(math.sin(a))
@@ -481,7 +484,8 @@ def register(subparsers) -> None:
         "(thesis 4.3, 4.4.6). " + _CONVENTIONS + " Meshes keep their vertex colours, else "
         "one clay colour. Volumes keep their sample spacing (resampled to cubic voxels, "
         "trilinear), their slice axis (z) becomes y and their front (-y, the face in DICOM "
-        "and NRRD patient coordinates) faces +z; see --up and --front.",
+        "and NRRD patient coordinates) faces +z; a mesh's front (the side the most surface "
+        "faces, unless --front or glTF says) faces +z too; see --up and --front.",
     )
     p.add_argument("input", help="mesh (.ply/.obj/...), volume (.mhd, .nhdr/.nrrd, .vtk; "
                    ".nii, .mha, ... with jaxgfx[volumes]), .vxl, .kv6, "
@@ -497,8 +501,12 @@ def register(subparsers) -> None:
                    "also -x|-y|-z (default z, the slice axis; write --up=-z)")  # fmt: skip
     p.add_argument("--front", choices=FRONT_AXES, default=None,
                    help="the file's axis out of the subject's front, turned to +z where "
-                   "render-voxels looks from: volumes default -y (the face in the patient "
-                   "coordinates of DICOM and NRRD; write --front=-y), meshes z")  # fmt: skip
+                   "render-voxels looks from (write --front=-y). Default: volumes -y (the "
+                   "face in the patient coordinates of DICOM and NRRD) unless --up makes "
+                   "it vertical, glTF meshes z; else, of the four sides +z, +x, -z, -x "
+                   "(after --up), the one the most surface faces (area-weighted normals, "
+                   "voxel faces; for a closed surface its broad side), ties within 2%% "
+                   "going to that order")  # fmt: skip
     p.add_argument("--levels", type=positive_int, default=1, help="mip levels to encode")
     p.add_argument("--seed", type=int, default=0, help="seed for 'tree'")
     p.add_argument("--out", required=True, help="output scene (.npz)")
