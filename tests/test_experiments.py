@@ -54,6 +54,7 @@ SHARED_ORDER = (
     "rle_quality",
     "cast_rays",
     "camera_models",
+    "texture_fit",
     "vmap_identity",
     "rle_bench",
     "report",

@@ -220,3 +220,17 @@ def test_terrain_sampling_and_meshing_batch_without_loops():
         mesh_of,
     ):
         _pin(fn, (origin,), (origins,), loops=0)
+
+
+def test_texture_lookups_lower_without_loops():
+    # texture: gathers from the packed pyramid, one per corner and level; uv_footprint: shifts
+    # of the frame.  No loop on any platform, one frame or a batch.
+    from jaxgfx.raster import mip_pyramid, texture, uv_footprint
+
+    tex = mip_pyramid(np.zeros((64, 64, 3), np.float32))
+    uv = jnp.zeros((2, H, W, 2))
+    tid = jnp.zeros((2, H, W), jnp.int32)
+    _pin(
+        lambda u, t: texture(tex, u, uv_footprint(u, t)), (uv[0], tid[0]), (uv, tid),
+        loops=0, cpu_frame_loop=0,
+    )  # fmt: skip

@@ -15,6 +15,7 @@ __all__ = [
     "load_mesh",
     "up_rotation",
     "mesh_arrays",
+    "mesh_texture",
     "save_png",
     "save_npy",
     "save_json",
@@ -267,6 +268,27 @@ def mesh_arrays(mesh, default_color=(0.75, 0.72, 0.68)):
     if colors is None:
         colors = np.broadcast_to(np.asarray(default_color, np.float32), v.shape).copy()
     return v, f, colors
+
+
+def mesh_texture(mesh) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``(uvs (V, 2) float32, image (H, W, C) uint8)`` of a textured trimesh, or Nones.
+
+    trimesh reads OBJ (``map_Kd``) and glTF (``baseColorTexture``) textures with v counting
+    upwards; the UVs here count from the image's top-left corner, as
+    :func:`jaxgfx.raster.texture` reads them (``v`` flipped).
+    """
+    visual = getattr(mesh, "visual", None)
+    if visual is None or getattr(visual, "kind", None) != "texture":
+        return None, None
+    uv = getattr(visual, "uv", None)
+    material = getattr(visual, "material", None)
+    image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    if uv is None or image is None or len(uv) != len(mesh.vertices):
+        return None, None
+    pixels = np.asarray(image.convert("RGBA") if hasattr(image, "convert") else image)
+    uvs = np.asarray(uv, np.float32).copy()
+    uvs[:, 1] = 1.0 - uvs[:, 1]
+    return uvs, pixels.astype(np.uint8)
 
 
 def _as_uint8_image(img) -> np.ndarray:

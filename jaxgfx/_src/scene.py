@@ -20,6 +20,7 @@ from jaxgfx._src.checks import static_field
 from jaxgfx._src.compose import Frame, background, composite, fog, lambert
 from jaxgfx._src.post import shade_voxels
 from jaxgfx._src.raster import rasterize, validate_mesh, vertex_normals
+from jaxgfx._src.texture import MipTexture, mip_pyramid, texture, uv_footprint
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.render import render_rle
 from jaxgfx._src.voxel.settings import RenderSettings
@@ -46,22 +47,50 @@ class MeshPass:
         faces: (F, 3) int32 indices.
         colors: (V, 3) albedo in [0, 1].
         normals: (V, 3) unit normals.
+        uvs: (V, 2) texture coordinates, (0, 0) the texture's top-left corner; None
+            without a texture.
+        textured: (V, 1) 1 where the vertex's albedo is multiplied by the texture, else 0;
+            None without a texture.
+        texture: the :func:`~jaxgfx.raster.mip_pyramid` of the pass's texture, or None.
     """
 
     vertices: jax.Array
     faces: jax.Array
     colors: jax.Array
     normals: jax.Array
+    uvs: jax.Array | None = None
+    textured: jax.Array | None = None
+    texture: MipTexture | None = None
 
 
-def mesh_pass(vertices, faces, colors=None, normals=None) -> MeshPass:
-    """Validates a mesh and builds a :class:`MeshPass` (normals computed if absent)."""
+def mesh_pass(vertices, faces, colors=None, normals=None, uvs=None, texture=None) -> MeshPass:
+    """Validates a mesh and builds a :class:`MeshPass` (normals computed if absent).
+
+    Args:
+        vertices: (V, 3) positions.
+        faces: (F, 3) vertex indices.
+        colors: (V, 3) albedo in [0, 1] (0.7 grey if None); a texture multiplies it.
+        normals: (V, 3) normals, computed from the faces if None.
+        uvs: (V, 2) texture coordinates, required with ``texture``.
+        texture: (H, W, C) image (uint8 or floats in [0, 1]) or a :class:`MipTexture`.
+
+    Raises:
+        ValueError: bad shapes, or ``texture`` without ``uvs`` (or the reverse).
+    """
     validate_mesh(vertices, faces, colors)
     v = jnp.asarray(vertices, jnp.float32)
     f = jnp.asarray(faces, jnp.int32)
     c = jnp.full(v.shape, 0.7, jnp.float32) if colors is None else jnp.asarray(colors, jnp.float32)
     n = vertex_normals(v, f) if normals is None else jnp.asarray(normals, jnp.float32)
-    return MeshPass(v, f, c, n)
+    if (uvs is None) != (texture is None):
+        raise ValueError("uvs and texture go together: pass both or neither")
+    if uvs is None:
+        return MeshPass(v, f, c, n)
+    uv = jnp.asarray(uvs, jnp.float32)
+    if uv.shape != (v.shape[0], 2):
+        raise ValueError(f"uvs must have shape ({v.shape[0]}, 2), got {uv.shape}")
+    tex = texture if isinstance(texture, MipTexture) else mip_pyramid(texture)
+    return MeshPass(v, f, c, n, uv, jnp.ones((v.shape[0], 1)), tex)
 
 
 def merge_mesh_passes(passes) -> MeshPass:
@@ -70,11 +99,26 @@ def merge_mesh_passes(passes) -> MeshPass:
     if not passes:
         raise ValueError("merge_mesh_passes: need at least one mesh")
     offs = np.cumsum([0] + [p.vertices.shape[0] for p in passes[:-1]])
+    textures = [p.texture for p in passes if p.texture is not None]
+    if len(textures) > 1:
+        raise ValueError("merge_mesh_passes: at most one of the meshes may have a texture")
+    uvs = textured = None
+    if textures:  # the untextured meshes keep their albedo (textured = 0)
+        n = [p.vertices.shape[0] for p in passes]
+        uvs = jnp.concatenate(
+            [p.uvs if p.texture is not None else jnp.zeros((k, 2)) for p, k in zip(passes, n)]
+        )
+        textured = jnp.concatenate(
+            [p.textured if p.texture is not None else jnp.zeros((k, 1)) for p, k in zip(passes, n)]
+        )
     return MeshPass(
         jnp.concatenate([p.vertices for p in passes]),
         jnp.concatenate([p.faces + int(o) for p, o in zip(passes, offs)]),
         jnp.concatenate([p.colors for p in passes]),
         jnp.concatenate([p.normals for p in passes]),
+        uvs,
+        textured,
+        textures[0] if textures else None,
     )
 
 
@@ -85,10 +129,22 @@ def render_mesh_pass(
     ambient: float = 0.3,
     cull_backfaces: bool = False,
 ) -> Frame:
-    """Rasterizes and Lambert-shades one mesh pass -> :class:`~jaxgfx.compose.Frame`."""
-    attrs = jnp.concatenate([mesh.colors, mesh.normals], axis=-1)
+    """Rasterizes and Lambert-shades one mesh pass -> :class:`~jaxgfx.compose.Frame`.
+
+    A textured pass multiplies each pixel's albedo by the texture at its UV, filtered by
+    the UVs' footprint (:func:`~jaxgfx.raster.texture`).
+    """
+    if mesh.texture is None or mesh.uvs is None or mesh.textured is None:
+        attrs = jnp.concatenate([mesh.colors, mesh.normals], axis=-1)
+    else:
+        attrs = jnp.concatenate([mesh.colors, mesh.normals, mesh.uvs, mesh.textured], axis=-1)
     out = rasterize(cam, mesh.vertices, mesh.faces, attrs, cull_backfaces=cull_backfaces)
-    color = lambert(out.color[..., 3:], out.color[..., :3], light_dir, ambient)
+    albedo = out.color[..., :3]
+    if out.color.shape[-1] == 9 and mesh.texture is not None:
+        uv, t = out.color[..., 6:8], out.color[..., 8:9]
+        rgb = texture(mesh.texture, uv, uv_footprint(uv, out.tri_id))[..., :3]
+        albedo = albedo * (1.0 - t + t * rgb)
+    color = lambert(out.color[..., 3:6], albedo, light_dir, ambient)
     return Frame(color, out.depth)
 
 

@@ -50,7 +50,7 @@ from jaxgfx.cli.framing import (
 )
 
 CHARACTER_COLOR = (0.85, 0.5, 0.25)
-"""The skinned mesh of a ``.glb`` is drawn in this colour (textures are not read)."""
+"""The skinned mesh of a ``.glb`` without a base colour texture is drawn in this colour."""
 
 MESH_KIND = "a mesh file (.ply, .obj, .glb, .gltf, .stl, .off)"
 
@@ -126,19 +126,37 @@ def _skinned_scene(args: argparse.Namespace):
         mats, gskin.vertices, gskin.normals, gskin.joints, gskin.weights
     )
     rot = up_rotation(args.up).astype(np.float32)
-    color = np.tile(np.asarray(CHARACTER_COLOR, np.float32), (len(gskin.vertices), 1))
-    passes = [mesh_pass(np.asarray(pos) @ rot.T, gskin.faces, color, np.asarray(nrm) @ rot.T)]
+    # A textured character is drawn in its texture's colours, otherwise in CHARACTER_COLOR.
+    base = CHARACTER_COLOR if gskin.texture is None else (1.0, 1.0, 1.0)
+    color = np.tile(np.asarray(base, np.float32), (len(gskin.vertices), 1))
+    textures = [gskin.texture] if gskin.texture is not None else []
+    passes = [
+        mesh_pass(
+            np.asarray(pos) @ rot.T, gskin.faces, color, np.asarray(nrm) @ rot.T,
+            uvs=gskin.uvs, texture=gskin.texture,
+        )
+    ]  # fmt: skip
     with input_errors():
         props = skin.load_gltf_meshes(args.mesh)
+    dropped = 0
     for m in props:
-        passes.append(mesh_pass(m.vertices @ rot.T, m.faces, m.colors))
+        # One texture a pass: a prop's own texture is drawn when the character has none.
+        own = m.texture is not None and not textures
+        dropped += int(m.texture is not None and not own)
+        if m.texture is not None and own:
+            textures.append(m.texture)
+        passes.append(
+            mesh_pass(m.vertices @ rot.T, m.faces, m.colors,
+                      uvs=m.uvs if own else None, texture=m.texture if own else None)
+        )  # fmt: skip
     info = dict(skinned_vertices=len(gskin.vertices), time=t, props=len(passes) - 1)
+    info.update(textured=bool(textures), textures_not_drawn=dropped)
     return merge_mesh_passes(passes), info
 
 
 def _load_mesh_pass(args: argparse.Namespace, skinned: bool | None = None):
     """The mesh file as one :class:`MeshPass`, whether it is skinned (+ summary info)."""
-    from jaxgfx.io import load_mesh, mesh_arrays
+    from jaxgfx.io import load_mesh, mesh_arrays, mesh_texture
     from jaxgfx.scene import mesh_pass
 
     check_in_file("mesh", args.mesh, MESH_KIND)
@@ -148,8 +166,13 @@ def _load_mesh_pass(args: argparse.Namespace, skinned: bool | None = None):
         mp, info = _skinned_scene(args)
         return mp, info, True
     with input_errors():
-        mp = mesh_pass(*mesh_arrays(load_mesh(args.mesh, up=args.up)))
-    return mp, {}, False
+        mesh = load_mesh(args.mesh, up=args.up)
+        v, f, colors = mesh_arrays(mesh)
+        uvs, image = mesh_texture(mesh)
+        if image is not None:  # the texture gives the colours
+            colors = np.ones_like(colors)
+        mp = mesh_pass(v, f, colors, uvs=uvs, texture=image)
+    return mp, {"textured": image is not None}, False
 
 
 def _frame(cam, mp, cull: bool):
@@ -360,8 +383,8 @@ def register(subparsers) -> None:
     )
     r.add_argument(
         "mesh",
-        help="PLY/OBJ/GLB/STL file; a .glb's skinned mesh is posed and drawn orange with the "
-        "file's other meshes",
+        help="PLY/OBJ/GLB/STL file, drawn with its base colour texture where it has one; a "
+        ".glb's skinned mesh is posed (orange without a texture) with the file's other meshes",
     )
     r.add_argument(
         "--time",

@@ -55,6 +55,8 @@ class GltfSkin(NamedTuple):
     anim_times: tuple  # per joint and path ('translation', 'rotation', 'scale'): key times or None
     anim_values: tuple  # the matching key values
     duration: float  # clip length in seconds
+    uvs: np.ndarray | None = None  # shape=(V, 2), float32, TEXCOORD of the base colour texture
+    texture: np.ndarray | None = None  # shape=(H, W, C), uint8, the base colour texture
 
 
 class GltfMesh(NamedTuple):
@@ -64,6 +66,8 @@ class GltfMesh(NamedTuple):
     faces: np.ndarray  # shape=(F, 3), int32
     colors: np.ndarray  # shape=(V, 3), float32 in [0, 1]: COLOR_0, else the base colour factor
     name: str  # the node's name
+    uvs: np.ndarray | None = None  # shape=(V, 2), float32, TEXCOORD of the base colour texture
+    texture: np.ndarray | None = None  # shape=(H, W, C), uint8, the base colour texture
 
 
 def _read_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
@@ -147,12 +151,43 @@ def _load_glb(path):
     return gltf, blob
 
 
+def _base_color_texture(gltf, blob: bytes, prim) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``(uvs (V, 2), image (H, W, C) uint8)`` of a primitive's base colour texture, or Nones.
+
+    The image is decoded from the ``.glb``'s buffer (PNG or JPEG, by imageio); glTF's UVs
+    already count from the image's top-left corner, as :func:`jaxgfx.raster.texture` does.
+    """
+    if prim.material is None:
+        return None, None
+    pbr = gltf.materials[prim.material].pbrMetallicRoughness
+    info = pbr.baseColorTexture if pbr is not None else None
+    if info is None or info.index is None:
+        return None, None
+    source = gltf.textures[info.index].source
+    coord = getattr(prim.attributes, f"TEXCOORD_{info.texCoord or 0}", None)
+    if source is None or coord is None:
+        return None, None
+    image = gltf.images[source]
+    if image.bufferView is None:
+        return None, None  # an external image file: only what the .glb holds is read
+    import imageio.v3 as iio
+
+    view = gltf.bufferViews[image.bufferView]
+    start = view.byteOffset or 0
+    pixels = np.asarray(iio.imread(blob[start : start + view.byteLength]))
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    uvs = _read_accessor(gltf, blob, coord).astype(np.float32)
+    return uvs, pixels.astype(np.uint8)
+
+
 def load_gltf_meshes(path) -> list[GltfMesh]:
     """Every unskinned triangle primitive of a ``.glb`` placed by its node transform.
 
     The props that ride along with a character (the Fox's stand); skinned nodes are left out
-    (pose them with :func:`load_gltf_skin`).  Textures are not read: a primitive is coloured by
-    its ``COLOR_0`` or its material's base colour factor (white without a material).
+    (pose them with :func:`load_gltf_skin`).  A primitive is coloured by its ``COLOR_0`` or
+    its material's base colour factor (white without a material), times its base colour
+    texture where the ``.glb`` holds one (``uvs`` and ``texture``).
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -182,7 +217,9 @@ def load_gltf_meshes(path) -> list[GltfMesh]:
                     base = (pbr.baseColorFactor if pbr is not None else None) or base
                 c = np.tile(np.asarray(base[:3], np.float32), (len(v), 1))
             wv = v @ world[:3, :3].T + world[:3, 3]
-            out.append(GltfMesh(wv.astype(np.float32), f, c, node.name or f"node {i}"))
+            uvs, image = _base_color_texture(gltf, blob, prim)
+            name = node.name or f"node {i}"
+            out.append(GltfMesh(wv.astype(np.float32), f, c, name, uvs, image))
     return out
 
 
@@ -195,7 +232,8 @@ def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
 
     Returns:
         :class:`GltfSkin`.  Weights are renormalized to sum to one (the glTF spec asks for that
-        and exporters round), all other data are as stored.
+        and exporters round), all other data are as stored; ``uvs`` and ``texture`` are the
+        mesh's base colour texture where the ``.glb`` holds one.
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -220,6 +258,7 @@ def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
     if np.any(sums <= 0):
         raise ValueError(f"path: {path} has vertices with all-zero skin weights")
     weights = (weights / sums).astype(np.float32)
+    uvs, image = _base_color_texture(gltf, blob, prim)
 
     skin = gltf.skins[node.skin]
     joint_nodes = list(skin.joints)
@@ -275,6 +314,8 @@ def load_gltf_skin(path, mesh_index: int | None = None) -> GltfSkin:
         anim_times=tuple(tuple(t) for t in times),
         anim_values=tuple(tuple(v) for v in values),
         duration=duration,
+        uvs=uvs,
+        texture=image,
     )
 
 
