@@ -32,7 +32,7 @@ import jax
 import numpy as np
 
 from experiments._rle_peers import cube_faces, make_embree
-from experiments.common import DATA, machine, markdown_table, write_table
+from experiments.common import DATA, best_of, machine, markdown_table, write_table
 from jaxgfx import raycast as RC
 
 
@@ -65,16 +65,6 @@ def random_rays(shape, n: int, seed: int = 0):
     directions[:k] = rng.normal(size=(k, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)  # t is a distance
     return origins.astype(np.float32), directions.astype(np.float32)
-
-
-def best_of(fn, reps: int = 3) -> float:
-    """Fastest wall time of ``reps`` calls of ``fn`` (its result blocked on), in seconds."""
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps",))

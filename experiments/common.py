@@ -7,6 +7,7 @@ Timing, the machine line and the Markdown/JSON tables are the library's own (the
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import jax
@@ -17,6 +18,7 @@ from jaxgfx._src.report import machine, markdown_table, time_jitted, write_table
 
 __all__ = [
     "DATA",
+    "best_of",
     "machine",
     "time_jitted",
     "markdown_table",
@@ -26,6 +28,17 @@ __all__ = [
     "limb_binding",
     "random_poses",
 ]
+
+
+def best_of(fn, reps: int = 3) -> float:
+    """Fastest wall time of ``reps`` calls of ``fn`` (its result blocked on), in seconds."""
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
 
 # Real data no one here made (``../shared/data`` beside the checkout; JAXGFX_DATA overrides).
 DATA = Path(

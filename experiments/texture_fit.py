@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from experiments.common import DATA, machine, markdown_table, write_table
+from experiments.common import DATA, best_of, machine, markdown_table, write_table
 from jaxgfx.camera import orbit_cameras
 from jaxgfx.io import save_png
 from jaxgfx.raster import mip_pyramid, rasterize, texture, uv_footprint
@@ -79,15 +79,6 @@ def render_textured(cams, verts, faces, uvs, base):
         return jnp.where(out.tri_id[..., None] >= 0, rgb, 0.0)
 
     return jax.vmap(one)(cams)
-
-
-def best_of(fn, reps: int = 3) -> float:
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def main(argv=None) -> int:
