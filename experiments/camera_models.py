@@ -207,8 +207,9 @@ def agreement_rows(quick: bool, width: int, height: int) -> list[dict]:
         (f"render_rle, {name} R={res}", K2, R2, t2, cv, cf,
          lambda cam: RC.render_rle(rle, cam).depth, None)
     )  # fmt: skip
-    tv, tf, anchor, levels = terrain_mesh(terrain_map(quick))
-    K3, R3, t3 = terrain_camera(width, height)
+    size = 32 if quick else 64
+    tv, tf, anchor, levels = terrain_mesh(terrain_map(quick), size)
+    K3, R3, t3 = terrain_camera(width, height, size)
     jobs.append(
         (f"terrain, {'St Helens' if not quick else 'procedural'} map", K3, R3, t3, tv, tf,
          lambda cam: T.render_levels(cam, levels, anchor, rasterize_fn=jax.jit(rasterize)).depth,
@@ -250,26 +251,25 @@ def terrain_map(quick: bool):
     return 24 * np.exp(-3 * (x * x + z * z)) + 4 * np.sin(5 * x)
 
 
-TERRAIN_N, TERRAIN_LEVELS = 64, 3
-TERRAIN_REACH = TERRAIN_N * (1 << (TERRAIN_LEVELS - 1)) // 2  # the outer box's half-width
+TERRAIN_LEVELS = 3
 
 
-def terrain_mesh(heights_or_path):
+def terrain_mesh(heights_or_path, size: int):
     """The terrain's drawn levels and their mesh: ``(vertices, faces, anchor, levels)``.
 
     Vertices are relative to the integer ``anchor`` (the viewer), as the terrain draws them.
     """
     terrain = T.heightmap_terrain(heights_or_path)
-    pipe = T.ClipBoxPipeline(terrain, size=TERRAIN_N, levels=TERRAIN_LEVELS)
+    pipe = T.ClipBoxPipeline(terrain, size=size, levels=TERRAIN_LEVELS)
     anchor = np.asarray(T.default_viewer(terrain), np.int64)
     levels = T.level_views(pipe.init(anchor))
     v, _, f, _ = T.level_arrays(levels, anchor)
     return v, f, anchor, levels
 
 
-def terrain_camera(width: int, height: int):
+def terrain_camera(width: int, height: int, size: int):
     """``K, R, t`` above the drawn terrain's south side, looking down across it."""
-    r = TERRAIN_REACH
+    r = size * (1 << (TERRAIN_LEVELS - 1)) // 2  # the outer box's half-width
     eye = np.array([0.15 * r, 0.45 * r, -0.8 * r])
     return (
         opencv_intrinsics(width, height, 60.0),
@@ -404,8 +404,8 @@ def start_axes(target, n: int, seed: int = 1) -> list[np.ndarray]:
 
 def pose_rows(quick: bool) -> list[dict]:
     loss_and_grad, target = pose_problem(*((32, 24) if quick else (64, 48)))
-    axes = start_axes(target, 3 if quick else 16)
-    steps = 120 if quick else 300
+    axes = start_axes(target, 2 if quick else 16)
+    steps = 40 if quick else 300
     rows = []
     for label, euler in (("quaternion", False), ("yaw/pitch/roll", True)):
         final = np.array([
@@ -422,10 +422,12 @@ def pose_rows(quick: bool) -> list[dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small scenes and frames, 3 fits")
+    ap.add_argument(
+        "--quick", action="store_true", help="small scenes and frames, 2 fits of 40 steps"
+    )
     ap.add_argument("--out", default="out/camera_models", help="folder for the tables")
     args = ap.parse_args(argv)
-    width, height = (48, 36) if args.quick else (512, 384)
+    width, height = (32, 24) if args.quick else (512, 384)
     agree = agreement_rows(args.quick, width, height)
     trips = round_trips()
     fits = pose_rows(args.quick)
