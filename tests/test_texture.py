@@ -194,3 +194,32 @@ def test_render_draws_a_glb_with_its_texture(tmp_path):
     others = [img[..., [1, 2]].max(-1), img[..., [0, 2]].max(-1), img[..., [0, 1]].max(-1)]
     dominant = [img[..., c] > 1.6 * others[c] for c in range(3)]
     assert all(d.sum() > 4 for d in dominant), [int(d.sum()) for d in dominant]
+
+
+def test_bad_texture_input_is_refused_naming_the_argument():
+    import jaxgfx
+    from jaxgfx.scene import merge_mesh_passes, mesh_pass
+
+    tex = mip_pyramid(IMAGE)
+    with pytest.raises(ValueError, match="uv: 1 of 4 values are NaN"):
+        texture(tex, np.array([[0.1, np.nan], [0.2, 0.3]]))
+    with pytest.raises(ValueError, match="image: 1 of"):
+        mip_pyramid(np.where(np.arange(4).reshape(2, 2) == 3, np.nan, 0.5))
+    with pytest.raises(ValueError, match=r"uv must have shape \(\.\.\., 2\)"):
+        texture(tex, np.zeros((4, 3)))
+    # under jit the values are checked by jaxgfx.checked
+    bad = jnp.array([[0.1, jnp.inf]])
+    assert np.isfinite(np.asarray(jax.jit(lambda u: texture(tex, u))(jnp.zeros((1, 2))))).all()
+    with pytest.raises(ValueError, match="uv: 1 of 2 values are NaN or infinite"):
+        jaxgfx.checked(jax.jit(lambda u: texture(tex, u)))(bad)
+    v = np.zeros((3, 3), np.float32)
+    f = np.array([[0, 1, 2]], np.int32)
+    with pytest.raises(ValueError, match="uvs and texture go together"):
+        mesh_pass(v, f, uvs=np.zeros((3, 2)))
+    with pytest.raises(ValueError, match=r"uvs must have shape \(3, 2\)"):
+        mesh_pass(v, f, uvs=np.zeros((2, 2)), texture=IMAGE)
+    textured = mesh_pass(v, f, uvs=np.zeros((3, 2)), texture=IMAGE)
+    with pytest.raises(ValueError, match="at most one of the meshes may have a texture"):
+        merge_mesh_passes([textured, textured])
+    merged = merge_mesh_passes([textured, mesh_pass(v, f)])
+    np.testing.assert_array_equal(np.asarray(merged.textured)[:, 0], [1, 1, 1, 0, 0, 0])

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import check_int, static_field
+from jaxgfx._src.checks import check_int, require_finite, static_field
 
 __all__ = ["MipTexture", "mip_pyramid", "texture", "sample_bilinear", "uv_footprint"]
 
@@ -92,6 +92,7 @@ def mip_pyramid(image, levels: int | None = None) -> MipTexture:
     Raises:
         ValueError: ``image`` is not 2-D or 3-D, or empty; ``levels`` < 1.
     """
+    _check_finite("image", image)
     img = jnp.asarray(image)
     if img.ndim == 2:
         img = img[..., None]
@@ -164,9 +165,12 @@ def texture(tex: MipTexture, uv, footprint=None, *, wrap: str = "repeat") -> jax
         (..., C) float32; differentiable with respect to ``tex`` and ``uv``.
     """
     _check_wrap(wrap)
+    _check_finite("uv", uv)
     uv = jnp.asarray(uv, jnp.float32)
     if uv.shape[-1:] != (2,):
         raise ValueError(f"uv must have shape (..., 2), got {uv.shape}")
+    require_finite("uv", uv, "texture")
+    require_finite("tex.texels", tex.texels, "texture")
     if footprint is None:
         return _bilinear(tex, uv, jnp.zeros(uv.shape[:-1], jnp.int32), wrap)
     fp = jax.lax.stop_gradient(jnp.abs(jnp.asarray(footprint, jnp.float32)))
@@ -205,6 +209,16 @@ def uv_footprint(uv_image, tri_id) -> jax.Array:
         return jnp.abs(d)
 
     return jnp.maximum(along(0), along(1))
+
+
+def _check_finite(name: str, x) -> None:
+    """A concrete ``x`` must be finite (a NaN UV reads an arbitrary texel); traced ones pass."""
+    if isinstance(x, jax.core.Tracer):
+        return
+    a = np.asarray(x)
+    bad = int(np.sum(~np.isfinite(a))) if np.issubdtype(a.dtype, np.floating) else 0
+    if bad:
+        raise ValueError(f"{name}: {bad} of {a.size} values are NaN or infinite (in texture)")
 
 
 def _check_wrap(wrap: str) -> None:
