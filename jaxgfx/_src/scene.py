@@ -72,7 +72,8 @@ def mesh_pass(vertices, faces, colors=None, normals=None, uvs=None, texture=None
         colors: (V, 3) albedo in [0, 1] (0.7 grey if None); a texture multiplies it.
         normals: (V, 3) normals, computed from the faces if None.
         uvs: (V, 2) texture coordinates, required with ``texture``.
-        texture: (H, W, C) image (uint8 or floats in [0, 1]) or a :class:`MipTexture`.
+        texture: (H, W, C) image (uint8 or floats in [0, 1]) or a
+            :class:`~jaxgfx.raster.MipTexture`.
 
     Raises:
         ValueError: bad shapes, or ``texture`` without ``uvs`` (or the reverse).
