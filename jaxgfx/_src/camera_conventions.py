@@ -54,8 +54,9 @@ def camera_from_opencv(
 
     A world point ``X`` is seen at ``K (R X + t)`` (homogeneous pixels, OpenCV's y down):
     the pixel :func:`project` gives for the same point.  Pixel coordinates count from
-    the image's top-left corner with centres at ``+0.5`` (COLMAP's and OpenCV's
-    convention), so ``cx = width / 2`` is a centred camera.
+    the image's top-left corner with centres at ``+0.5`` (COLMAP's and open3d's
+    convention), so ``cx = width / 2`` is a centred camera.  OpenCV's own calibrations put
+    the first pixel's centre at 0: add 0.5 to their ``cx`` and ``cy``.
 
     Args:
         K: (3, 3) intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` in pixels.
