@@ -41,6 +41,7 @@ __all__ = [
     "check_int",
     "check_float",
     "check_pixels",
+    "check_finite",
     "MAX_PIXELS",
     "checked",
     "checking",
@@ -259,6 +260,21 @@ def require_values(name: str, ok, x, rule: str, where: str | None = None) -> Non
     ok = jnp.asarray(ok).reshape(-1)
     first = jnp.asarray(x).reshape(-1)[jnp.argmax(~ok)] if ok.size else jnp.zeros(())
     _check(jnp.all(ok), f"{name}: {rule}{_in(where)}", first)
+
+
+def check_finite(name: str, x, where: str | None = None) -> None:
+    """A concrete ``x`` must be finite, else ``name: k of n values are NaN or infinite``.
+
+    Traced values pass (:func:`require_finite` checks them under :func:`checked`).
+    """
+    if isinstance(x, jax.core.Tracer):
+        return
+    a = np.asarray(x)
+    if not np.issubdtype(a.dtype, np.floating):
+        return
+    bad = int(np.sum(~np.isfinite(a)))
+    if bad:
+        raise ValueError(f"{name}: {bad} of {a.size} values are NaN or infinite{_in(where)}")
 
 
 def require_finite(name: str, x, where: str | None = None) -> None:

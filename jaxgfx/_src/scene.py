@@ -135,15 +135,18 @@ def render_mesh_pass(
     A textured pass multiplies each pixel's albedo by the texture at its UV, filtered by
     the UVs' footprint (:func:`~jaxgfx.raster.texture`).
     """
-    if mesh.texture is None or mesh.uvs is None or mesh.textured is None:
-        attrs = jnp.concatenate([mesh.colors, mesh.normals], axis=-1)
+    tex = mesh.texture
+    attrs = [mesh.colors, mesh.normals]
+    if tex is not None and mesh.uvs is not None and mesh.textured is not None:
+        attrs += [mesh.uvs, mesh.textured]
     else:
-        attrs = jnp.concatenate([mesh.colors, mesh.normals, mesh.uvs, mesh.textured], axis=-1)
-    out = rasterize(cam, mesh.vertices, mesh.faces, attrs, cull_backfaces=cull_backfaces)
+        tex = None
+    out = rasterize(cam, mesh.vertices, mesh.faces, jnp.concatenate(attrs, axis=-1),
+                    cull_backfaces=cull_backfaces)  # fmt: skip
     albedo = out.color[..., :3]
-    if out.color.shape[-1] == 9 and mesh.texture is not None:
+    if tex is not None:
         uv, t = out.color[..., 6:8], out.color[..., 8:9]
-        rgb = texture(mesh.texture, uv, uv_footprint(uv, out.tri_id))[..., :3]
+        rgb = texture(tex, uv, uv_footprint(uv, out.tri_id))[..., :3]
         albedo = albedo * (1.0 - t + t * rgb)
     color = lambert(out.color[..., 3:6], albedo, light_dir, ambient)
     return Frame(color, out.depth)

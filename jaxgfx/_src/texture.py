@@ -9,7 +9,7 @@ neighbours on the same triangle (a GPU's derivatives over a 2x2 quad).
 
 Conventions: ``uv = (0, 0)`` is the image's top-left corner and ``(1, 1)`` its bottom-right
 (glTF's); texel ``(i, j)``'s centre is at ``((i + 0.5) / W, (j + 0.5) / H)``.  OBJ files
-count v upwards: :func:`jaxgfx.io.load_textured_mesh` flips them on reading.  Outside
+count v upwards: :func:`jaxgfx.io.mesh_texture` flips them on reading.  Outside
 ``[0, 1]`` the texture repeats (``wrap="repeat"``, glTF's default) or its edge texels
 extend (``"clamp"``).
 
@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgfx._src.checks import check_int, require_finite, static_field
+from jaxgfx._src.checks import check_finite, check_int, require_finite, static_field
 
 __all__ = ["MipTexture", "mip_pyramid", "texture", "sample_bilinear", "uv_footprint"]
 
@@ -92,7 +92,7 @@ def mip_pyramid(image, levels: int | None = None) -> MipTexture:
     Raises:
         ValueError: ``image`` is not 2-D or 3-D, or empty; ``levels`` < 1.
     """
-    _check_finite("image", image)
+    check_finite("image", image, "mip_pyramid")
     img = jnp.asarray(image)
     if img.ndim == 2:
         img = img[..., None]
@@ -165,7 +165,7 @@ def texture(tex: MipTexture, uv, footprint=None, *, wrap: str = "repeat") -> jax
         (..., C) float32; differentiable with respect to ``tex`` and ``uv``.
     """
     _check_wrap(wrap)
-    _check_finite("uv", uv)
+    check_finite("uv", uv, "texture")  # a NaN UV would read an arbitrary texel
     uv = jnp.asarray(uv, jnp.float32)
     if uv.shape[-1:] != (2,):
         raise ValueError(f"uv must have shape (..., 2), got {uv.shape}")
@@ -209,16 +209,6 @@ def uv_footprint(uv_image, tri_id) -> jax.Array:
         return jnp.abs(d)
 
     return jnp.maximum(along(0), along(1))
-
-
-def _check_finite(name: str, x) -> None:
-    """A concrete ``x`` must be finite (a NaN UV reads an arbitrary texel); traced ones pass."""
-    if isinstance(x, jax.core.Tracer):
-        return
-    a = np.asarray(x)
-    bad = int(np.sum(~np.isfinite(a))) if np.issubdtype(a.dtype, np.floating) else 0
-    if bad:
-        raise ValueError(f"{name}: {bad} of {a.size} values are NaN or infinite (in texture)")
 
 
 def _check_wrap(wrap: str) -> None:

@@ -13,7 +13,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxgfx._src.checks import checking, require_finite, require_indices, require_values
+from jaxgfx._src.checks import (
+    check_finite,
+    checking,
+    require_finite,
+    require_indices,
+    require_values,
+)
 from jaxgfx._src.frames import per_frame, split_rows
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _concrete, _normalize, _safe_norm
@@ -121,9 +127,8 @@ def _check_lbs_inputs(transforms, vertices, normals, joints, weights, where: str
     arrays = {"transforms": transforms, "vertices": vertices, "normals": normals}
     for name, a in {**arrays, "weights": weights}.items():
         c = _concrete(a)
-        if c is not None and not np.all(np.isfinite(c)):
-            bad = int(np.sum(~np.isfinite(c)))
-            raise ValueError(f"{name}: {bad} of {c.size} values are NaN or infinite")
+        if c is not None:
+            check_finite(name, c)
     w = _concrete(weights)
     if w is not None and (np.any(w < 0) or np.any(np.abs(w.sum(-1) - 1) > 1e-3)):
         raise ValueError("weights must be non-negative and sum to one per vertex")
