@@ -24,8 +24,11 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "-1"
 
 import jax  # noqa: E402
+import jax_time  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+
+jax_time.install()  # JAXGFX_JAX_TIME=DIR: where the suite's time goes (tests/jax_time.py)
 
 # Compiling is most of this suite's time, so tests (and the CLI and experiment runs they
 # start: the variables reach subprocesses) compile at XLA:CPU's lowest backend optimization
