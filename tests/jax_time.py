@@ -1,8 +1,9 @@
 """Where the suite's time goes: JAX's tracing, lowering and compiling per test.
 
-With ``JAXGFX_JAX_TIME=DIR`` set, every test process (the xdist workers, and the shared
-experiments process, whose runs are labelled ``EXP:name``) records JAX's monitoring events
-and writes ``DIR/<pid>.json`` when it exits; ``python tests/jax_time.py DIR`` sums them per
+With ``JAXGFX_JAX_TIME=DIR`` set, every test process (the xdist workers, the Python
+processes they start, labelled with the starting test, and the shared experiments
+process, whose runs are labelled ``EXP:name``) records JAX's monitoring events and writes
+``DIR/<pid>.json`` when it exits; ``python tests/jax_time.py DIR`` sums them per
 test module (experiments as one row) and lists the tests that compile most::
 
     JAXGFX_JAX_TIME=/tmp/jt pytest -q && python tests/jax_time.py /tmp/jt
@@ -33,11 +34,23 @@ def label() -> str:
     )
 
 
+_INSTALLED: list[bool] = []
+
+
 def install() -> None:
-    """Records the events of this process when ``JAXGFX_JAX_TIME`` names a folder."""
+    """Records the events of this process when ``JAXGFX_JAX_TIME`` names a folder.
+
+    Also puts ``jax_time_site`` on ``PYTHONPATH``, so the Python processes this one starts
+    record theirs (its ``sitecustomize`` calls this at their start).
+    """
     out = os.environ.get("JAXGFX_JAX_TIME")
-    if not out:
+    if not out or _INSTALLED:
         return
+    _INSTALLED.append(True)
+    site = str(Path(__file__).with_name("jax_time_site"))
+    paths = os.environ.get("PYTHONPATH", "").split(os.pathsep)
+    if site not in paths:
+        os.environ["PYTHONPATH"] = os.pathsep.join(p for p in [site, *paths] if p)
     import jax
 
     events: list = []
