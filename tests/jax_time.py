@@ -75,13 +75,14 @@ def main(folder: str) -> None:
     per_test: dict = collections.defaultdict(collections.Counter)
     for f in Path(folder).glob("*.json"):
         for kind, seconds, name in json.loads(f.read_text())["events"]:
+            name = name or "(outside tests)"
             module = "experiments" if name.startswith("EXP:") else name.split("::")[0]
-            per_module[module or "(outside tests)"][kind] += seconds
-            per_test[name or "(outside tests)"][kind] += seconds
+            per_test[name][kind] += seconds
+            per_module[module][kind] += seconds
             if kind == "compile":  # how many programs, and the big ones' share
-                big = seconds >= 1.0
-                per_module[module or "(outside tests)"]["n_big" if big else "n_small"] += 1
-                per_module[module or "(outside tests)"]["big" if big else "small"] += seconds
+                big = "big" if seconds >= 1.0 else "small"
+                per_module[module][f"n_{big}"] += 1
+                per_module[module][big] += seconds
     kinds = list(EVENTS.values())
     cols = [*kinds, "sum", "n_big", "big", "n_small", "small"]
     print("| module | trace s | lower s | compile s | sum s | programs >= 1 s | their s |"

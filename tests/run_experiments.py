@@ -32,8 +32,6 @@ import time
 import traceback
 from pathlib import Path
 
-import jax_time
-
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -110,10 +108,9 @@ def main(argv=None) -> int:
     import jax
 
     jax.devices()  # start the backends: an experiment cannot change the device count
-    jax_time.install()
     results = Path(args.results)
     for name in args.names:
-        os.environ["JAXGFX_JAX_TIME_LABEL"] = f"EXP:{name}"  # (jax_time.py)
+        os.environ["JAXGFX_JAX_TIME_LABEL"] = f"EXP:{name}"  # jax_time.py, when recording
         (results / name).mkdir(parents=True, exist_ok=True)
         faulthandler.dump_traceback_later(args.timeout, exit=True, file=sys.__stderr__)
         result = run_one(name, results / name)
