@@ -57,7 +57,7 @@ def install() -> None:
 
     def listener(event: str, duration: float, **kwargs) -> None:
         if event in EVENTS:
-            events.append((EVENTS[event], duration, label()))
+            events.append((EVENTS[event], duration, label(), str(kwargs.get("fun_name", ""))))
 
     jax.monitoring.register_event_duration_secs_listener(listener)
 
@@ -73,9 +73,11 @@ def install() -> None:
 def main(folder: str) -> None:
     per_module: dict = collections.defaultdict(collections.Counter)
     per_test: dict = collections.defaultdict(collections.Counter)
+    per_function: dict = collections.defaultdict(collections.Counter)
     for f in Path(folder).glob("*.json"):
-        for kind, seconds, name in json.loads(f.read_text())["events"]:
+        for kind, seconds, name, *function in json.loads(f.read_text())["events"]:
             name = name or "(outside tests)"
+            per_function[function[0] if function else "?"][kind] += seconds
             module = "experiments" if name.startswith("EXP:") else name.split("::")[0]
             per_test[name][kind] += seconds
             per_module[module][kind] += seconds
@@ -98,6 +100,9 @@ def main(folder: str) -> None:
     print("\nTests that trace, lower and compile most (s):")
     for name, c in sorted(per_test.items(), key=lambda kv: -sum(kv[1].values()))[:20]:
         print(f"{sum(c.values()):7.1f}  {name}")
+    print("\nFunctions that trace, lower and compile most (s: trace, lower, compile):")
+    for name, c in sorted(per_function.items(), key=lambda kv: -sum(kv[1].values()))[:25]:
+        print(f"{sum(c.values()):7.1f}  " + " ".join(f"{c[k]:6.1f}" for k in kinds) + f"  {name}")
 
 
 if __name__ == "__main__":
