@@ -50,6 +50,7 @@ def test_background_gradients_wrt_the_camera_are_finite_and_right():
     # rows' zero cotangents into NaN.  d/dpitch matches a central difference.
     cam = camera_from_degrees([0, 0, 0], 10, 5, 0, 60, 16, 12)
 
+    @jax.jit
     def total(pitch, yaw):
         rotation = yaw_pitch_roll_rotation(yaw, pitch, 0.0)
         return jnp.sum(background(dataclasses.replace(cam, rotation=rotation)).color)

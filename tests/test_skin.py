@@ -133,6 +133,7 @@ def test_straight_spline_frame_finite_with_gradients():
     pts = jnp.asarray(STRAIGHT[0])
     ref = jnp.array([1.0, 0.0, 0.0])
 
+    @jax.jit
     def f(points, twist, a):
         return jnp.sum(jnp.sin(_frame(points, a, twist, ref, 0.4)))
 
@@ -697,7 +698,7 @@ def test_lbs_and_dqs_gradients_are_the_per_vertex_references():
     for name, kernel in kernels.items():
         mesh_fn = functools.partial(_skin_mesh, kernel, n, joints, weights)
         ours = jax.jit(jax.grad(lambda t, v, fn=mesh_fn: loss(t, v, fn), (0, 1)))
-        ref = jax.grad(lambda t, v, fn=per_vertex[name]: loss(t, v, fn), (0, 1))
+        ref = jax.jit(jax.grad(lambda t, v, fn=per_vertex[name]: loss(t, v, fn), (0, 1)))
         g_t, g_v = ours(transforms, v)
         r_t, r_v = ref(transforms, v)
         np.testing.assert_allclose(g_t, r_t, rtol=1e-4, atol=1e-4)
@@ -842,3 +843,24 @@ def test_sampled_kernel_equals_per_vertex_reference():
     for k, (pos, nrm) in enumerate(outs):
         np.testing.assert_allclose(bpos[k], pos, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
         np.testing.assert_allclose(bnrm[k], nrm, rtol=_KERNEL_RTOL, atol=_KERNEL_ATOL)
+
+
+def test_an_eager_call_compiles_one_program_and_keeps_its_errors(compile_counter):
+    # Outside jit the mesh kernels run as one compiled program per shapes (op by op,
+    # each of their operations compiled on its own, dozens at every new mesh size), give
+    # the jitted call's result, and still refuse bad values before compiling.
+    rng = np.random.default_rng(5)
+    joints, weights, v, n = _random_influences(rng, 29, 3, 4)
+    axes = rng.normal(size=(4, 3)).astype(np.float32)
+    rot = np.stack([np.asarray(skin.axis_angle_to_matrix(a)) for a in axes])
+    t = np.concatenate([rot, rng.normal(size=(4, 3, 1)).astype(np.float32)], -1)
+    for kernel in (skin.linear_blend_skinning, skin.dual_quaternion_skinning):
+        with compile_counter() as counter:
+            pos, nrm = kernel(t, v, n, joints, weights)
+        assert counter.count == 1, (kernel.__name__, counter.count)
+        jpos, jnrm = jax.jit(kernel)(t, v, n, joints, weights)
+        np.testing.assert_allclose(pos, jpos, rtol=1e-6, atol=1e-6)
+        bad = v.copy()
+        bad[3, 1] = np.nan
+        with pytest.raises(ValueError, match="vertices: 1 of 87 values are NaN"):
+            kernel(t, bad, n, joints, weights)

@@ -98,6 +98,7 @@ def test_texture_gradients_match_finite_differences():
     fp = np.full((16, 2), 0.12, np.float32)
     weights = RNG.uniform(size=(16, 3)).astype(np.float32)
 
+    @jax.jit
     def loss(texels, uv):
         t = type(tex)(texels, tex.sizes)
         return jnp.sum(texture(t, uv, fp) * weights)

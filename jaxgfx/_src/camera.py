@@ -34,6 +34,7 @@ Conventions (used by every module of jaxgfx):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -50,6 +51,7 @@ from jaxgfx._src.checks import (
     require_values,
     static_field,
 )
+from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.rotation import quaternion_of_angles, rotation_matrix
 
 __all__ = [
@@ -444,6 +446,7 @@ def screen_to_camera(cam: Camera, sx, sy) -> tuple[jax.Array, jax.Array]:
     return (sx - cx) * (1.0 / fx), (cy - sy) * (1.0 / fy)
 
 
+@compiled_when_eager
 def project(cam: Camera, points: jax.Array) -> tuple[jax.Array, jax.Array]:
     """World points (..., 3) -> (pixel xy (..., 2), depth (...)).
 
@@ -454,6 +457,7 @@ def project(cam: Camera, points: jax.Array) -> tuple[jax.Array, jax.Array]:
     return camera_to_screen(cam, p), p[..., 2]
 
 
+@functools.partial(compiled_when_eager, static_argnames=("normalize",))
 def pixel_rays(cam: Camera, normalize: bool = True) -> tuple[jax.Array, jax.Array]:
     """One ray per pixel centre.
 

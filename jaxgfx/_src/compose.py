@@ -15,6 +15,7 @@ import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, pixel_rays, validate_camera
 from jaxgfx._src.checks import checking, require_values
+from jaxgfx._src.eager import compiled_when_eager
 
 __all__ = [
     "Frame",
@@ -106,6 +107,11 @@ def background(
     Pass the same colour three times for a flat background.
     """
     validate_camera(cam, where="background")  # a NaN view direction would be a NaN sky
+    return _background(cam, horizon, zenith, ground)
+
+
+def _background_of(cam: Camera, horizon, zenith, ground) -> Frame:
+    """:func:`background` of a checked camera."""
     _, d = pixel_rays(cam, normalize=True)
     up = d[..., 1:2]
     hz = jnp.asarray(horizon, jnp.float32)
@@ -113,6 +119,9 @@ def background(
     gnd = hz + (jnp.asarray(ground, jnp.float32) - hz) * _sqrt_up(-up)
     color = jnp.where(up >= 0, sky, gnd)
     return Frame(color, jnp.full(color.shape[:2], jnp.inf, jnp.float32))
+
+
+_background = compiled_when_eager(_background_of)
 
 
 def lambert(
@@ -175,6 +184,7 @@ def fog(frame: Frame, fog_color=(0.78, 0.86, 0.95), density: float = 0.0) -> Fra
     return Frame(jnp.where(finite[..., None], c, frame.color), frame.depth)
 
 
+@compiled_when_eager
 def depth_image(depth: jax.Array, near=None, far=None) -> jax.Array:
     """Depth as a grey image: bright near, dark far, black where empty (Fig. 2.3).
 

@@ -19,10 +19,13 @@ empty; every function works on one frame and is vmap-able.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, focal_length, screen_to_camera
+from jaxgfx._src.eager import compiled_when_eager
 
 __all__ = [
     "antialias",
@@ -70,6 +73,7 @@ def antialias(color, depth, factor: tuple[int, int] = (2, 1)):
     return c, d
 
 
+@compiled_when_eager
 def smooth(
     color,
     depth,
@@ -136,6 +140,7 @@ def _offsets(key, n, H, W):
     return r * jnp.cos(a), r * jnp.sin(a)
 
 
+@functools.partial(compiled_when_eager, static_argnames=("samples",))
 def screen_space_normals(
     cam: Camera, depth, *, key, samples: int = 16, scale: float | jax.Array = 40.0
 ):

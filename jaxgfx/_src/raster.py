@@ -50,6 +50,7 @@ from jaxgfx._src.camera import (
     world_to_camera_soa,
 )
 from jaxgfx._src.checks import check_int, require_finite, require_indices
+from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
 from jaxgfx._src.precision import in_32bit
 from jaxgfx._src.zbuffer import (
@@ -427,8 +428,7 @@ def _rasterize_jvp(static, primals, tangents):
     return out, t_out
 
 
-# Eager calls run the frame compiled once per shapes and settings (op by op, the loops would
-# compile at every call, seconds each); under the caller's jit the call is inlined.
+# Eager calls run the frame compiled once per shapes and settings (as compiled_when_eager).
 _compiled_rasterize = jax.jit(_rasterize, static_argnums=0)
 
 
@@ -589,6 +589,7 @@ def _stripes(h: int, w: int, pixels: int = 1 << 18) -> int:
     return h
 
 
+@compiled_when_eager
 def vertex_normals(vertices: jax.Array, faces: jax.Array) -> jax.Array:
     """Area-weighted unit vertex normals (V, 3)."""
     t = vertices[faces]

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.checks import check_finite, check_int, require_finite, static_field
+from jaxgfx._src.eager import compiled_when_eager
 
 __all__ = ["MipTexture", "mip_pyramid", "texture", "sample_bilinear", "uv_footprint"]
 
@@ -171,6 +172,11 @@ def texture(tex: MipTexture, uv, footprint=None, *, wrap: str = "repeat") -> jax
         raise ValueError(f"uv must have shape (..., 2), got {uv.shape}")
     require_finite("uv", uv, "texture")
     require_finite("tex.texels", tex.texels, "texture")
+    return _texture(tex, uv, footprint, wrap=wrap)
+
+
+def _texture_of(tex: MipTexture, uv, footprint, wrap: str) -> jax.Array:
+    """:func:`texture` of checked arguments."""
     if footprint is None:
         return _bilinear(tex, uv, jnp.zeros(uv.shape[:-1], jnp.int32), wrap)
     fp = jax.lax.stop_gradient(jnp.abs(jnp.asarray(footprint, jnp.float32)))
@@ -182,6 +188,9 @@ def texture(tex: MipTexture, uv, footprint=None, *, wrap: str = "repeat") -> jax
     k1 = jnp.minimum(k0 + 1, top)
     t = (lod - k0.astype(jnp.float32))[..., None]
     return _bilinear(tex, uv, k0, wrap) * (1 - t) + _bilinear(tex, uv, k1, wrap) * t
+
+
+_texture = compiled_when_eager(_texture_of, static_argnames=("wrap",))
 
 
 def uv_footprint(uv_image, tri_id) -> jax.Array:

@@ -20,6 +20,7 @@ from jaxgfx._src.checks import (
     require_indices,
     require_values,
 )
+from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.frames import per_frame, split_rows
 from jaxgfx._src.skin.binding import SkinBinding
 from jaxgfx._src.skin.geometry import _EPS_SQ, _compose, _concrete, _normalize, _safe_norm
@@ -218,7 +219,7 @@ def _differentiable(kernel):
     return fn
 
 
-_LBS = split_rows(_differentiable(_lbs_mesh), rows=(1, 2, 3, 4))
+_LBS = compiled_when_eager(split_rows(_differentiable(_lbs_mesh), rows=(1, 2, 3, 4)))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -391,4 +392,4 @@ def _dqs_mesh(transforms, vertices, normals, joints, weights):
     return pos, normalize_rows(lax.optimization_barrier(raw))
 
 
-_DQS = split_rows(_differentiable(_dqs_mesh), rows=(1, 2, 3, 4))
+_DQS = compiled_when_eager(split_rows(_differentiable(_dqs_mesh), rows=(1, 2, 3, 4)))
