@@ -37,6 +37,7 @@ import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, pixel_rays
 from jaxgfx._src.checks import require_finite
+from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.grid import (
     _column_elements,
@@ -411,6 +412,11 @@ def cast_rays(rle: RLEVolume, origins, directions, *, far=jnp.inf) -> RayHits:
         jnp.any(jnp.all(directions == 0, axis=-1))
     ):
         raise ValueError("directions must be nonzero vectors")
+    return _cast_checked(rle, origins, directions, far)
+
+
+def _cast_rays_of(rle: RLEVolume, origins, directions, far) -> RayHits:
+    """:func:`cast_rays` of checked rays."""
     lead = origins.shape[:-1]
     bounds = column_bounds(rle)
     flat_o, flat_d = origins.reshape(-1, 3), directions.reshape(-1, 3)
@@ -428,6 +434,9 @@ def cast_rays(rle: RLEVolume, origins, directions, *, far=jnp.inf) -> RayHits:
         # accelerator a loop step is a launch, and the lockstep batch takes the fewest.
         hits = jax.lax.platform_dependent(flat_o, flat_d, cpu=wavefront, default=lockstep)
     return jax.tree_util.tree_map(lambda a: a.reshape(lead + a.shape[1:]), hits)
+
+
+_cast_checked = compiled_when_eager(_cast_rays_of)
 
 
 def hit_normals(cam: Camera, depth) -> jax.Array:
