@@ -219,7 +219,8 @@ def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:
     return rows
 
 
-def batch_table(args, peers_for) -> list[dict]:
+def batch_table(args, peers_for, raster=None) -> list[dict]:
+    """``raster``: the one-frame table's ``jax.jit(rasterize)`` (``--quick``'s loop uses it)."""
     from jax.sharding import NamedSharding
     from jax.sharding import PartitionSpec as P
 
@@ -257,6 +258,10 @@ def batch_table(args, peers_for) -> list[dict]:
             p.run(state)
         for kind, one in kinds.items():
             single, batched = jax.jit(one), jax.jit(jax.vmap(one))
+            if args.quick and raster is not None and kind == "depth":
+                # quick: the loop draws with the one-frame table's program (colour and depth,
+                # same mesh and size), one program less to compile
+                single = lambda cam: raster(cam, v, f, v).depth  # noqa: E731
             methods = {
                 "loop": lambda each=each, single=single: jax.block_until_ready(
                     [single(cam) for cam in each]
@@ -460,7 +465,7 @@ def main(argv=None) -> int:
     if ndev > 1 and not args.quick:
         split = jax.jit(functools.partial(rasterize, devices=ndev))
     frame_rows = [] if args.no_frames else one_frame_table(args, peers_for, raster, split)
-    batch_rows = batch_table(args, peers_for)
+    batch_rows = batch_table(args, peers_for, raster)
     meta = dict(
         machine=machine(),
         command="python -m experiments.bench_raster" + (" --quick" if args.quick else ""),

@@ -63,20 +63,23 @@ def padded_faces(f: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def render_times(st, viewer, width, height, raster):
+def render_times(st, viewer, width, height, raster, one_shape=False):
     """ms to draw each level alone and all levels together (steady state).
 
     Each mesh is padded with degenerate triangles to its own power of two, so a
-    few shapes are compiled and the padding costs at most 2x.
+    few shapes are compiled and the padding costs at most 2x.  ``one_shape``: every
+    mesh padded to the largest one's power of two, one shape to compile.
     """
     levels = T.level_views(st)
     cam = camera_from_degrees((0.0, 0.0, 0.0), 0, -15, 0, 60, width, height, 0.5, 1e5)
     arrays = [T.level_arrays([lv], viewer) for lv in levels]
     arrays.append(T.level_arrays(levels, viewer))
+    f_min = max(f.shape[0] for _, _, f, _ in arrays) if one_shape else 0
+    v_min = max(v.shape[0] for v, _, _, _ in arrays) if one_shape else 0
     out = []
     for v, n, f, _ in arrays:
-        cap = 1 << int(np.ceil(np.log2(f.shape[0] + 2)))
-        vcap = 1 << int(np.ceil(np.log2(v.shape[0] + 2)))
+        cap = 1 << int(np.ceil(np.log2(max(f.shape[0], f_min) + 2)))
+        vcap = 1 << int(np.ceil(np.log2(max(v.shape[0], v_min) + 2)))
         vv = np.zeros((vcap, 3), np.float32)
         vv[: v.shape[0]] = v
         nn = np.zeros((vcap, 3), np.float32)
@@ -317,7 +320,7 @@ def main(argv=None) -> int:
     sizes = (32,) if quick else (64, 96, 128, 160, 192)  # quick: one pipeline to compile
     if args.sizes:
         sizes = tuple(int(v) for v in args.sizes.split(","))
-    steps = 6 if quick else 24
+    steps = 3 if quick else 24  # quick: fewer box moves, fewer slab shapes to compile
     width, height = (160, 120) if quick else (640, 480)
     print("machine:", machine())
     t0 = time.perf_counter()
@@ -343,7 +346,10 @@ def main(argv=None) -> int:
         sample_ms, mesh_ms = per_box[0]
         box_ms = sample_ms + mesh_ms
         worst = max(range(levels), key=lambda lvl: sum(per_box[lvl]))
-        lvl_render, (total_render, total_polys) = render_times(st, path[-1], width, height, raster)
+        # quick: every level drawn at the size of all of them, one rasterizer to compile
+        lvl_render, (total_render, total_polys) = render_times(
+            st, path[-1], width, height, raster, one_shape=quick
+        )
         upd = [1e3 * dt / k for dt, k in moves]
         reused = [s["reused"] for v in per_level.values() for s in v]
         row = dict(
