@@ -309,7 +309,11 @@ def run_view(path, view, extra, size, out_dir, resolution=64, levels=5, options=
     verts = verts - np.asarray(rep["viewer"], np.float64)  # viewer-relative, like the CLI
     reach = resolution * (1 << (levels - 1)) // 2
     yaw, pitch = rep["camera"]
-    cam = camera_from_degrees((0.0, 0.0, 0.0), yaw, pitch, 0.0, FOV, *size, 0.25, 8.0 * reach)
+    # The eye sits at the viewer, or (a height map's default view) where it sees the map
+    # whole: the CLI prints both; its far plane reaches past the boxes from the eye.
+    eye = np.asarray(rep["eye"], np.float64) - np.asarray(rep["viewer"], np.float64)
+    far = 8.0 * (reach + float(np.linalg.norm(eye)))
+    cam = camera_from_degrees(tuple(eye), yaw, pitch, 0.0, FOV, *size, 0.25, far)
     ref = np.asarray(
         jax.jit(rasterize)(cam, jnp.asarray(verts, jnp.float32), jnp.asarray(faces)).depth
     )
