@@ -428,7 +428,7 @@ def _rasterize_jvp(static, primals, tangents):
     return out, t_out
 
 
-# Eager calls run the frame compiled once per shapes and settings (as compiled_when_eager).
+# One jitted frame, eager calls and traced ones alike (under a caller's jit it is inlined).
 _compiled_rasterize = jax.jit(_rasterize, static_argnums=0)
 
 
