@@ -77,6 +77,15 @@ BENCHMARKS = (
         "core and a memory-copy bound.",
     ),
     Benchmark(
+        "fit_bench",
+        "Image-fitting cost against Mitsuba 3",
+        (),
+        "A coverage frame, its analytic antialiasing and the gradients of an image loss through "
+        "both (vertices, camera), the rasterizer's own reverse, a whole style-fit step; beside "
+        "Mitsuba 3's projective-sampling gradients of the same loss (skipped without an LLVM >= "
+        "16).",
+    ),
+    Benchmark(
         "clipbox_table",
         "Clip-Box terrain and meshing against VTK",
         (),

@@ -50,6 +50,7 @@ SHARED_ORDER = (
     "silhouette_gradients",
     "fit_style_images",
     "fit_style",
+    "fit_bench",
     "artifacts",
     "rle_quality",
     "cast_rays",
