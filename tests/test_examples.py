@@ -135,6 +135,9 @@ def test_python_example_runs_as_written(blocks, tmp_path):
     assert res.returncode == 0, f"{block.where} failed:\n{res.stderr[-4000:]}"
     for claim in _printed_claims(block.code):
         assert claim in res.stdout, f"{block.where} printed {res.stdout!r}, not {claim!r}"
+    # The image fit's text says its vertex error falls more than fivefold (getting started).
+    for before, after in re.findall(r"vertex error (\S+) -> (\S+)", res.stdout):
+        assert float(before) >= 5 * float(after), f"{block.where}: {before} -> {after}"
 
 
 def _commands(code: str) -> list[list[str]]:
