@@ -56,7 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 import trimesh
 
-from experiments.common import DATA, machine, markdown_table, write_table
+from experiments.common import DATA, best_rounds, machine, markdown_table, write_table
 
 RTOL = 1e-3  # depth agreement: |z_jaxgfx - z_peer| <= RTOL * z (float32 GL depth: ~3e-5)
 BATCHES = (1, 8, 32, 128)
@@ -113,28 +113,6 @@ def agreement(ours: np.ndarray, ref: np.ndarray) -> float:
     ours, ref = np.where(both, ours, 0.0), np.where(both, ref, 0.0)
     close = np.abs(ours - ref) <= RTOL * np.abs(ours)
     return float(np.mean((~a & ~b) | (both & close)))
-
-
-def best_rounds(methods: dict, rounds: int, cpu: dict | None = None) -> tuple[dict, dict]:
-    """Runs every method once per round, interleaved; returns (best seconds, last outputs).
-
-    With ``cpu`` (a dict) it also gets each method's least process CPU time of a round
-    (``time.process_time``: every thread, so 2 busy cores count twice), which load from
-    other processes disturbs less than wall time.
-    """
-    best = {k: float("inf") for k in methods}
-    if cpu is not None:
-        cpu.update({k: float("inf") for k in methods})
-    outs: dict = {}
-    for _ in range(rounds):
-        for k, fn in methods.items():
-            outs.pop(k, None)  # free the last round's outputs before timing the next
-            t0, c0 = time.perf_counter(), time.process_time()
-            outs[k] = fn()
-            best[k] = min(best[k], time.perf_counter() - t0)
-            if cpu is not None:
-                cpu[k] = min(cpu[k], time.process_time() - c0)
-    return best, outs
 
 
 def one_frame_table(args, peers_for, raster, split=None) -> list[dict]:

@@ -48,7 +48,6 @@ import re
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import jax
@@ -57,11 +56,11 @@ import numpy as np
 import optax
 import trimesh
 
-from experiments.common import DATA, machine, markdown_table, write_table
+from experiments.common import DATA, best_rounds, machine, markdown_table, write_table
 from jaxgfx import skin
 from jaxgfx.camera import camera_basis, focal_lengths, look_at, orbit_cameras, stack_cameras
 from jaxgfx.raster import rasterize
-from jaxgfx.silhouette import analytic_antialias, silhouette_edges
+from jaxgfx.silhouette import silhouette_edges
 
 BUNNY = DATA / "meshes" / "bun_zipper.ply"
 RADIUS = 1.8  # orbit radius in mesh units (the mesh is unit size)
@@ -81,24 +80,21 @@ def load_mesh(quick: bool) -> tuple[str, np.ndarray, np.ndarray]:
     return name, v.astype(np.float32), np.asarray(mesh.faces, np.int32)
 
 
-def best_rounds(methods: dict, rounds: int) -> dict:
-    """Best wall seconds of each method over interleaved rounds (every method once a round)."""
+def best_ms(methods: dict, rounds: int) -> dict:
+    """Best milliseconds of each method over interleaved rounds, after one warm-up call each."""
     for fn in methods.values():  # compile and warm up
         jax.block_until_ready(fn())
-    best = {k: np.inf for k in methods}
-    for _ in range(rounds):
-        for k, fn in methods.items():
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn())
-            best[k] = min(best[k], time.perf_counter() - t0)
-    return best
+    return {k: s * 1e3 for k, s in best_rounds(methods, rounds)[0].items()}
 
 
 def coverage(cam, v, f, edges):
     """(H, W) antialiased coverage of one mesh from one camera, over a background of 0."""
-    out = rasterize(cam, v, f, jnp.ones((v.shape[0], 1), jnp.float32))
-    covered = (out.tri_id >= 0).astype(jnp.float32)[..., None]
-    return analytic_antialias(cam, v, f, out, covered, edges=edges, background=0.0)[..., 0]
+    return skin.render_silhouette_depth(cam, v, f, edges)[0]
+
+
+def one_pixel_shift(cam) -> np.ndarray:
+    """(3,) about one pixel at the orbit radius along ``cam``'s right axis (the target's move)."""
+    return np.asarray(camera_basis(cam)[0]) * RADIUS / float(focal_lengths(cam)[0])
 
 
 # --quick compiles one function of each kind (the table's other columns stay blank): the
@@ -119,10 +115,7 @@ def mesh_table(name, v, f, sizes, batches, rounds, only=None) -> list[dict]:
         for batch in batches:
             cams = orbit_cameras([0, 0, 0], RADIUS, batch, fov=FOV, width=w, height=h)
             first = jax.tree_util.tree_map(lambda a: a[0], cams)
-            # The target: the mesh moved by about a pixel (at the orbit radius) along the first
-            # camera's right axis.
-            fx, _ = focal_lengths(first)
-            shift = np.asarray(camera_basis(first)[0]) * RADIUS / float(fx)
+            shift = one_pixel_shift(first)  # the target: the mesh moved by about a pixel
             one = batch == 1
             cam_arg = first if one else cams
 
@@ -166,8 +159,7 @@ def mesh_table(name, v, f, sizes, batches, rounds, only=None) -> list[dict]:
                 (lambda fn=fn, c=cam_arg: fn(v, c))
                 for k, fn in fns.items() if only is None or k in only
             }  # fmt: skip
-            best = best_rounds(methods, rounds)
-            ms = {k: s * 1e3 for k, s in best.items()}
+            ms = best_ms(methods, rounds)
             row = dict(mesh=name, triangles=int(f.shape[0]), size=f"{w}x{h}", batch=batch)
             for k, base in (
                 ("raster", None), ("antialias", "raster"), ("vg_vertices", "raster"),
@@ -229,8 +221,7 @@ def style_table(sizes, rounds, only=None) -> list[dict]:
             vg=lambda fn=vg: fn(params),
             step=lambda fn=step, s=state: fn(params, s),
         )
-        best = best_rounds({k: m for k, m in methods.items() if only is None or k in only}, rounds)
-        ms = {k: s * 1e3 for k, s in best.items()}
+        ms = best_ms({k: m for k, m in methods.items() if only is None or k in only}, rounds)
         row = dict(case="demo arm, 2 poses x 2 cameras", size=f"{w}x{h}")
         row["forward_ms"] = ms.get("forward")
         for k in ("vg", "step"):
@@ -266,20 +257,18 @@ def mitsuba_skipped() -> str | None:
     return _llvm_reason()
 
 
-def mitsuba_row(name, v, f, size, ours_ms, ours_grad_fn) -> dict:
-    """Section 3: Mitsuba 3 on the same mesh, camera and loss, in a process of its own."""
-    w, h = size
-    row = dict(peer="Mitsuba 3 (llvm_ad_rgb, direct_projective)", mesh=name, size=f"{w}x{h}")
-    cam = orbit_cameras([0, 0, 0], RADIUS, 1, fov=FOV, width=w, height=h)
-    first = jax.tree_util.tree_map(lambda a: a[0], cam)
-    right, up, fwd = (np.asarray(x) for x in camera_basis(first))
-    fx, _ = focal_lengths(first)
-    shift = right * RADIUS / float(fx)
+PEER = "Mitsuba 3 (llvm_ad_rgb, direct_projective)"
+
+
+def mitsuba_row(row: dict, v, f, cam, shift, ours_ms: float, ours_grad) -> dict:
+    """Section 3: Mitsuba 3 on the same mesh, camera, target and loss, in a process of its own."""
+    _, up, fwd = (np.asarray(x) for x in camera_basis(cam))
+    eye = np.asarray(cam.position)
     with tempfile.TemporaryDirectory() as tmp:
         inp, out = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
         np.savez(
-            inp, vertices=v, faces=f, shift=shift, eye=np.asarray(first.position),
-            target=np.asarray(first.position) + fwd, up=up, fov=FOV, width=w, height=h,
+            inp, vertices=v, faces=f, shift=shift, eye=eye, target=eye + fwd, up=up, fov=FOV,
+            width=cam.width, height=cam.height,
         )  # fmt: skip
         proc = subprocess.run(
             [sys.executable, "-m", "experiments._mitsuba_peer", str(inp), str(out)],
@@ -290,7 +279,7 @@ def mitsuba_row(name, v, f, size, ours_ms, ours_grad_fn) -> dict:
             return {**row, "skipped": f"Mitsuba's process failed: {tail[0][:200]}"}
         res = np.load(out)
         theirs = np.asarray(res["grad"], np.float64).ravel()
-    ours = np.asarray(ours_grad_fn(shift), np.float64).ravel()
+    ours = np.asarray(ours_grad, np.float64).ravel()
     cos = float(ours @ theirs / max(np.linalg.norm(ours) * np.linalg.norm(theirs), 1e-30))
     return {
         **row,
@@ -304,26 +293,22 @@ def mitsuba_row(name, v, f, size, ours_ms, ours_grad_fn) -> dict:
 def mitsuba_section(name, v, f, quick) -> dict:
     """Our step at the peer's set-up, then the peer's row (the reason, where it cannot run)."""
     w, h = (32, 24) if quick else (256, 192)
+    row = dict(peer=PEER, mesh=name, size=f"{w}x{h}")
     reason = mitsuba_skipped()
     if reason is not None:
-        peer = "Mitsuba 3 (llvm_ad_rgb, direct_projective)"
-        return dict(peer=peer, mesh=name, size=f"{w}x{h}", skipped=reason)
+        return {**row, "skipped": reason}
     edges = jnp.asarray(silhouette_edges(f))
     vj, fj = jnp.asarray(v), jnp.asarray(f)
     cam = jax.tree_util.tree_map(
         lambda a: a[0], orbit_cameras([0, 0, 0], RADIUS, 1, fov=FOV, width=w, height=h)
     )
-
-    def vg_for(shift):
-        target = jax.jit(lambda vv: coverage(cam, vv, fj, edges))(vj + jnp.asarray(shift))
-        return jax.jit(
-            jax.value_and_grad(lambda vv: jnp.sum((coverage(cam, vv, fj, edges) - target) ** 2))
-        )
-
-    fx, _ = focal_lengths(cam)
-    vg = vg_for(np.asarray(camera_basis(cam)[0]) * RADIUS / float(fx))
-    best = best_rounds(dict(step=lambda: vg(vj)), 3 if quick else 7)
-    return mitsuba_row(name, v, f, (w, h), best["step"] * 1e3, lambda s: vg_for(s)(vj)[1])
+    shift = one_pixel_shift(cam)
+    target = jax.jit(lambda vv: coverage(cam, vv, fj, edges))(vj + jnp.asarray(shift))
+    vg = jax.jit(
+        jax.value_and_grad(lambda vv: jnp.sum((coverage(cam, vv, fj, edges) - target) ** 2))
+    )
+    ms = best_ms(dict(step=lambda: vg(vj)), 3 if quick else 7)
+    return mitsuba_row(row, v, f, cam, shift, ms["step"], vg(vj)[1])
 
 
 def main(argv=None) -> None:
