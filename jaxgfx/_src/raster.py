@@ -53,6 +53,7 @@ from jaxgfx._src.checks import check_int, require_finite, require_indices
 from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
 from jaxgfx._src.precision import in_32bit
+from jaxgfx._src.raster_tangents import shading_tangents
 from jaxgfx._src.zbuffer import (
     CHUNK,
     NO_TRI,
@@ -410,22 +411,17 @@ def _rasterize(static, cam, vertices, faces, attributes):
 def _rasterize_jvp(static, primals, tangents):
     # Which face a pixel sees is piecewise constant in the inputs: its derivative is zero
     # wherever it exists.  So the frame is rendered as without gradients, and the tangents
-    # come from the differentiable part alone: each pixel's ray intersected with its
-    # (now fixed) face.  The z-buffer's while_loop and scatters stay out of JVPs/VJPs
-    # (reverse mode cannot go through a while_loop).
+    # come from the differentiable part alone, each pixel's ray intersected with its (now
+    # fixed) face, in closed form (raster_tangents).  The z-buffer's while_loop and
+    # scatters stay out of JVPs/VJPs (reverse mode cannot go through a while_loop).
     cam, vertices, faces, attributes = primals
     t_cam, t_vertices, _, t_attributes = tangents
     out = _rasterize(static, *primals)
-    hit = out.tri_id.reshape(-1) >= 0
-    face_id = jnp.where(hit, out.tri_id.reshape(-1), _NO_TRI)
-    inv_depth = jnp.where(hit, 1.0 / out.depth.reshape(-1), 0.0)  # only the grazing fallback
-
-    def shade(cam, vertices, attributes):
-        pv = world_to_camera(cam, vertices)
-        return RasterOutput(*_shade(cam, pv, faces, attributes, inv_depth, face_id))
-
-    _, t_out = jax.jvp(shade, (cam, vertices, attributes), (t_cam, t_vertices, t_attributes))
-    return out, t_out
+    t_out = shading_tangents(
+        cam, vertices, faces, attributes, out.depth, out.tri_id, out.bary,
+        t_cam, t_vertices, t_attributes,
+    )  # fmt: skip
+    return out, RasterOutput(*t_out)
 
 
 # One jitted frame, eager calls and traced ones alike (under a caller's jit it is inlined).

@@ -6,7 +6,8 @@ and outlines instead.  :func:`fit_style_images` fits the same log-parameters (te
 
     style -> skin_fn(style, pose) -> rasterize -> analytic_antialias -> loss against the images
 
-batched with ``vmap`` over poses and, inside, over cameras.  Two images per (pose, camera):
+the P skinned meshes batched with ``vmap`` over poses, the images with one ``vmap`` over the
+P x C (pose, camera) pairs.  Two images per (pose, camera):
 
 * **silhouette**: the coverage image (1 where the character is drawn, 0 elsewhere) blended across
   silhouette edges by :func:`jaxgfx.silhouette.analytic_antialias` over a background of 0, so it
@@ -101,13 +102,25 @@ def render_silhouette_depth(
 
 
 def _render_batch(skin_fn, style, poses, faces, edges, cameras):
-    """(P, C, H, W) silhouettes and depths: vmap over poses, and inside over cameras."""
+    """(P, C, H, W) silhouettes and depths: the P skinned meshes, then one vmap over the P x C
+    (mesh, camera) pairs.
 
-    def one_pose(pose):
-        verts = skin_fn(style, pose)
-        return jax.vmap(lambda cam: render_silhouette_depth(cam, verts, faces, edges))(cameras)
-
-    return jax.vmap(one_pose)(poses)
+    One batch axis, not a vmap over cameras inside a vmap over poses: the rasterizer's and the
+    antialias pass's batching rules (one per platform) would nest, and each combination of them
+    would be traced for the same compiled program.
+    """
+    verts = jax.vmap(lambda pose: skin_fn(style, pose))(poses)  # (P, V, 3)
+    n_pose, n_cam = verts.shape[0], cameras.position.shape[0]
+    pose_of = jnp.repeat(jnp.arange(n_pose), n_cam)  # pair k = (k // C, k % C)
+    cam_of = jnp.tile(jnp.arange(n_cam), n_pose)
+    pair_cams = jax.tree_util.tree_map(lambda a: a[cam_of], cameras)
+    sil, depth = jax.vmap(render_silhouette_depth, (0, 0, None, None))(
+        pair_cams, verts[pose_of], faces, edges
+    )
+    return (
+        sil.reshape(n_pose, n_cam, *sil.shape[1:]),
+        depth.reshape(n_pose, n_cam, *depth.shape[1:]),
+    )
 
 
 # Eager calls (the usual way to make a fit's targets) run the P x C images as one compiled

@@ -1,0 +1,118 @@
+"""The rasterizer's derivative: tangents of a frame's shading, in closed form.
+
+Which face a pixel sees is piecewise constant in the vertices and the camera, so a frame's
+derivative is that of its shading: each pixel's ray ``r`` (camera space, ``z = 1``) meets
+its face's plane at ``X = t r = p0 + u e1 + v e2`` (``e1 = p1 - p0``, ``e2 = p2 - p0``).
+Differentiating, with barycentrics ``b = (1 - u - v, u, v)``::
+
+    dt r - du e1 - dv e2 = b0 dp0 + b1 dp1 + b2 dp2 - t dr
+
+a 3x3 system ``M (dt, du, dv) = dX`` with ``M = [r, -e1, -e2]``, whose inverse has the rows
+``(e1 x e2, r x e2, e1 x r) / (r . (e1 x e2))``.  So the tangents are three dot products per
+pixel with vectors of the primal frame, applied to the bary-weighted motion of the face's
+corners.
+
+Written so, the linear part is a gather of the corners' tangents, products with per-pixel
+primal values and sums; its transpose (reverse mode) is those products and one scatter-add
+of each pixel's three corner cotangents.  Autodiff's linearization of the intersection as
+the shading computes it kept the intersection's chain of operations per pixel in its
+transpose, fused by XLA:CPU into the loop writing the nine corner cotangents, and the
+reverse cost up to twice as much (the engine's design notes have the measurements).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgfx._src.camera import Camera, screen_to_camera, world_to_camera
+
+__all__ = ["shading_tangents"]
+
+
+def _cross(a, b):
+    """Cross product of two 3-tuples of (N,) arrays."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _dot(a, b):
+    """Dot product of two 3-tuples of (N,) arrays."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def shading_tangents(
+    cam: Camera,
+    vertices: jax.Array,
+    faces: jax.Array,
+    attributes: jax.Array,
+    depth: jax.Array,
+    tri_id: jax.Array,
+    bary: jax.Array,
+    t_cam: Camera,
+    t_vertices: jax.Array,
+    t_attributes: jax.Array,
+) -> tuple[jax.Array, jax.Array, np.ndarray, jax.Array]:
+    """Tangents of one frame's colour, depth, ids and barycentrics (module docstring).
+
+    Args:
+        cam, vertices (V, 3), faces (F, 3), attributes (V, C): the frame's inputs.
+        depth (H, W), tri_id (H, W), bary (H, W, 3): its rasterized output.
+        t_cam, t_vertices, t_attributes: the inputs' tangents.
+
+    Returns:
+        ``(t_color (H, W, C), t_depth (H, W), t_tri_id (H, W) float0, t_bary (H, W, 3))``;
+        zero where no face is seen and, for depth and barycentrics, at grazing faces (ray
+        almost in the face's plane), whose depth and barycentrics fall back to constants.
+    """
+    h, w = cam.height, cam.width
+    tri = tri_id.reshape(-1)
+    hit = tri >= 0
+    fv = jnp.take(faces, jnp.maximum(tri, 0), axis=0, mode="clip")  # (N, 3)
+    corner = [fv[:, k] for k in range(3)]
+    pv, t_pv = jax.jvp(world_to_camera, (cam, vertices), (t_cam, t_vertices))
+    cols = jnp.arange(w, dtype=jnp.float32) + 0.5
+    rows = jnp.arange(h, dtype=jnp.float32) + 0.5
+    (xs, ys), (t_xs, t_ys) = jax.jvp(lambda c: screen_to_camera(c, cols, rows), (cam,), (t_cam,))
+    ray = (
+        jnp.broadcast_to(xs[None, :], (h, w)).reshape(-1),
+        jnp.broadcast_to(ys[:, None], (h, w)).reshape(-1),
+        jnp.ones((h * w,), jnp.float32),
+    )
+    # Primal: the face's corners (1-D gathers: no (N, 3) cross products, slow on XLA:CPU).
+    p = [tuple(jnp.take(pv[:, a], c, mode="clip") for a in range(3)) for c in corner]
+    e1 = tuple(p[1][a] - p[0][a] for a in range(3))
+    e2 = tuple(p[2][a] - p[0][a] for a in range(3))
+    normal = _cross(e1, e2)
+    det = _dot(ray, normal)
+    # The rasterizer's own test for a grazing face (|e1 . (r x e2)| is |det|).
+    good = hit & (jnp.abs(det) > 1e-12 * (_dot(e1, e1) * _dot(e2, e2) + 1e-30))
+    inv = jnp.where(good, 1.0 / jnp.where(good, det, 1.0), 0.0)
+    rows_u, rows_v = _cross(ray, e2), _cross(e1, ray)
+    b = bary.reshape(-1, 3)
+    t = jnp.where(good, depth.reshape(-1), 0.0)
+    # Linear: the bary-weighted motion of the corners, less the ray's, then M^-1.
+    t_p = [jnp.take(t_pv, c, axis=0, mode="clip") for c in corner]  # (N, 3) each
+    moved = b[:, 0:1] * t_p[0] + b[:, 1:2] * t_p[1] + b[:, 2:3] * t_p[2]
+    t_ray = (
+        jnp.broadcast_to(t_xs[None, :], (h, w)).reshape(-1),
+        jnp.broadcast_to(t_ys[:, None], (h, w)).reshape(-1),
+    )
+    d_x = (moved[:, 0] - t * t_ray[0], moved[:, 1] - t * t_ray[1], moved[:, 2])
+    dt = _dot(normal, d_x) * inv
+    du = _dot(rows_u, d_x) * inv
+    dv = _dot(rows_v, d_x) * inv
+    t_bary = jnp.stack([-du - dv, du, dv], axis=-1)
+    a = [jnp.take(attributes, c, axis=0, mode="clip") for c in corner]  # (N, C) each
+    t_a = [jnp.take(t_attributes, c, axis=0, mode="clip") for c in corner]
+    t_color = sum(
+        (t_bary[:, k : k + 1] * a[k] + b[:, k : k + 1] * t_a[k] for k in range(3)),
+        jnp.zeros_like(a[0]),
+    )
+    t_color = jnp.where(hit[:, None], t_color, 0.0)
+    return (
+        t_color.reshape(h, w, -1),
+        dt.reshape(h, w),
+        np.zeros((h, w), jax.dtypes.float0),
+        t_bary.reshape(h, w, 3),
+    )
