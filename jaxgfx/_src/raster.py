@@ -53,7 +53,7 @@ from jaxgfx._src.checks import check_int, require_finite, require_indices
 from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
 from jaxgfx._src.precision import in_32bit
-from jaxgfx._src.raster_tangents import shading_tangents
+from jaxgfx._src.raster_tangents import cross3, dot3, shading_tangents
 from jaxgfx._src.zbuffer import (
     CHUNK,
     NO_TRI,
@@ -222,15 +222,15 @@ def _resolve_rows(cam, g, inv_depth, face_id, row0=0, rows=None):
     p0 = (g[0], g[1], g[2])
     e1 = (g[3] - g[0], g[4] - g[1], g[5] - g[2])
     e2 = (g[6] - g[0], g[7] - g[1], g[8] - g[2])
-    hvec = _cross(ray, e2)
-    det = _dot(e1, hvec)
-    good = hit & (jnp.abs(det) > 1e-12 * (_dot(e1, e1) * _dot(e2, e2) + 1e-30))
+    hvec = cross3(ray, e2)
+    det = dot3(e1, hvec)
+    good = hit & (jnp.abs(det) > 1e-12 * (dot3(e1, e1) * dot3(e2, e2) + 1e-30))
     inv_det = 1.0 / jnp.where(good, det, 1.0)
     svec = (-p0[0], -p0[1], -p0[2])
-    u = _dot(svec, hvec) * inv_det
-    qvec = _cross(svec, e1)
-    v = _dot(ray, qvec) * inv_det
-    t = _dot(e2, qvec) * inv_det
+    u = dot3(svec, hvec) * inv_det
+    qvec = cross3(svec, e1)
+    v = dot3(ray, qvec) * inv_det
+    t = dot3(e2, qvec) * inv_det
     z_vis = 1.0 / jnp.where(inv_depth > 0, inv_depth, 1.0)
     # Grazing faces (det ~ 0): fall back to the z-buffer's depth and the
     # face centroid, which keeps everything finite.
@@ -293,16 +293,6 @@ def _face_corners(faces, face_id):
     """
     fv = jnp.take(faces, face_id, axis=0, mode="clip")  # (N, 3): no (3, F) copy of faces
     return [fv[:, k] for k in range(3)]
-
-
-def _cross(a, b):
-    """Cross product of two 3-tuples of (N,) arrays."""
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _dot(a, b):
-    """Dot product of two 3-tuples of (N,) arrays."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 @in_32bit

@@ -28,16 +28,16 @@ import numpy as np
 
 from jaxgfx._src.camera import Camera, screen_to_camera, world_to_camera
 
-__all__ = ["shading_tangents"]
+__all__ = ["cross3", "dot3", "shading_tangents"]
 
 
-def _cross(a, b):
-    """Cross product of two 3-tuples of (N,) arrays."""
+def cross3(a, b):
+    """Cross product of two 3-tuples of (N,) arrays (structure of arrays)."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def _dot(a, b):
-    """Dot product of two 3-tuples of (N,) arrays."""
+def dot3(a, b):
+    """Dot product of two 3-tuples of (N,) arrays (structure of arrays)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
@@ -83,12 +83,12 @@ def shading_tangents(
     p = [tuple(jnp.take(pv[:, a], c, mode="clip") for a in range(3)) for c in corner]
     e1 = tuple(p[1][a] - p[0][a] for a in range(3))
     e2 = tuple(p[2][a] - p[0][a] for a in range(3))
-    normal = _cross(e1, e2)
-    det = _dot(ray, normal)
+    normal = cross3(e1, e2)
+    det = dot3(ray, normal)
     # The rasterizer's own test for a grazing face (|e1 . (r x e2)| is |det|).
-    good = hit & (jnp.abs(det) > 1e-12 * (_dot(e1, e1) * _dot(e2, e2) + 1e-30))
+    good = hit & (jnp.abs(det) > 1e-12 * (dot3(e1, e1) * dot3(e2, e2) + 1e-30))
     inv = jnp.where(good, 1.0 / jnp.where(good, det, 1.0), 0.0)
-    rows_u, rows_v = _cross(ray, e2), _cross(e1, ray)
+    rows_u, rows_v = cross3(ray, e2), cross3(e1, ray)
     b = bary.reshape(-1, 3)
     t = jnp.where(good, depth.reshape(-1), 0.0)
     # Linear: the bary-weighted motion of the corners, less the ray's, then M^-1.
@@ -99,9 +99,9 @@ def shading_tangents(
         jnp.broadcast_to(t_ys[:, None], (h, w)).reshape(-1),
     )
     d_x = (moved[:, 0] - t * t_ray[0], moved[:, 1] - t * t_ray[1], moved[:, 2])
-    dt = _dot(normal, d_x) * inv
-    du = _dot(rows_u, d_x) * inv
-    dv = _dot(rows_v, d_x) * inv
+    dt = dot3(normal, d_x) * inv
+    du = dot3(rows_u, d_x) * inv
+    dv = dot3(rows_v, d_x) * inv
     t_bary = jnp.stack([-du - dv, du, dv], axis=-1)
     a = [jnp.take(attributes, c, axis=0, mode="clip") for c in corner]  # (N, C) each
     t_a = [jnp.take(t_attributes, c, axis=0, mode="clip") for c in corner]
