@@ -88,7 +88,11 @@ def shading_tangents(
     # The rasterizer's own test for a grazing face (|e1 . (r x e2)| is |det|).
     good = hit & (jnp.abs(det) > 1e-12 * (dot3(e1, e1) * dot3(e2, e2) + 1e-30))
     inv = jnp.where(good, 1.0 / jnp.where(good, det, 1.0), 0.0)
-    rows_u, rows_v = cross3(ray, e2), cross3(e1, ray)
+    # The rows of M^-1, each scaled once here: the linear part (and its transpose) then
+    # reads three vectors a pixel.
+    m_t, m_u, m_v = (
+        tuple(x * inv for x in row) for row in (normal, cross3(ray, e2), cross3(e1, ray))
+    )
     b = bary.reshape(-1, 3)
     t = jnp.where(good, depth.reshape(-1), 0.0)
     # Linear: the bary-weighted motion of the corners, less the ray's, then M^-1.
@@ -99,15 +103,18 @@ def shading_tangents(
         jnp.broadcast_to(t_ys[:, None], (h, w)).reshape(-1),
     )
     d_x = (moved[:, 0] - t * t_ray[0], moved[:, 1] - t * t_ray[1], moved[:, 2])
-    dt = dot3(normal, d_x) * inv
-    du = dot3(rows_u, d_x) * inv
-    dv = dot3(rows_v, d_x) * inv
+    dt, du, dv = dot3(m_t, d_x), dot3(m_u, d_x), dot3(m_v, d_x)
     t_bary = jnp.stack([-du - dv, du, dv], axis=-1)
+    # Colour: sum_k b_k a_k moves with u and v along the attributes' edges, and with the
+    # attributes' own tangents.
     a = [jnp.take(attributes, c, axis=0, mode="clip") for c in corner]  # (N, C) each
     t_a = [jnp.take(t_attributes, c, axis=0, mode="clip") for c in corner]
-    t_color = sum(
-        (t_bary[:, k : k + 1] * a[k] + b[:, k : k + 1] * t_a[k] for k in range(3)),
-        jnp.zeros_like(a[0]),
+    t_color = (
+        du[:, None] * (a[1] - a[0])
+        + dv[:, None] * (a[2] - a[0])
+        + b[:, 0:1] * t_a[0]
+        + b[:, 1:2] * t_a[1]
+        + b[:, 2:3] * t_a[2]
     )
     t_color = jnp.where(hit[:, None], t_color, 0.0)
     return (
