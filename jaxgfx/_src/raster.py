@@ -353,7 +353,9 @@ def rasterize(
         with respect to ``vertices``, ``attributes`` and the camera's float fields
         (position, rotation, focal lengths, principal point) wherever coverage does not
         change: the visible face of each pixel is found without gradients, then the
-        pixel's ray is intersected with that face differentiably.  Coverage itself is
+        pixel's ray is intersected with that face differentiably, its tangents in closed
+        form (the intersection's 3x3 system), so a reverse pass is a few products and
+        one scatter of corner cotangents per pixel beside the frame.  Coverage itself is
         piecewise constant, so moving an edge across a pixel has no derivative here; for
         images whose silhouettes have gradients with respect to vertices and camera,
         pass this output to
