@@ -475,7 +475,8 @@ def _rasterize_split(static, split, cam, vertices, faces, attributes):
     """``rasterize(devices=D)``: one frame's faces z-buffered on D devices, rows shaded per device.
 
     The visible faces are found without gradients (``stop_gradient``: which face a pixel
-    sees is piecewise constant), the shading is differentiable as in :func:`_rasterize`.
+    sees is piecewise constant); the rows' shading is differentiated by autodiff (one frame's
+    rows per device), not by :func:`_rasterize`'s closed-form tangents.
     """
     cull_backfaces, block, chunk, batching = static
     cam_c, vertices_c = jax.lax.stop_gradient((cam, vertices))
