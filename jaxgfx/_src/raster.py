@@ -44,7 +44,6 @@ from jax.sharding import PartitionSpec
 from jaxgfx._src.camera import (
     Camera,
     as_float32,
-    screen_to_camera,
     validate_camera,
     world_to_camera,
     world_to_camera_soa,
@@ -53,7 +52,7 @@ from jaxgfx._src.checks import check_int, require_finite, require_indices
 from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.frames import batch_mesh, check_batching, per_frame, shard
 from jaxgfx._src.precision import in_32bit
-from jaxgfx._src.raster_tangents import cross3, dot3, shading_tangents
+from jaxgfx._src.raster_tangents import cross3, dot3, pixel_rays, shading_tangents
 from jaxgfx._src.zbuffer import (
     CHUNK,
     NO_TRI,
@@ -204,20 +203,12 @@ def _resolve_rows(cam, g, inv_depth, face_id, row0=0, rows=None):
     ``g``: 9 arrays (H*W,) (or a (9, H*W) array): corner-major x, y, z.  With ``rows``
     (static) the pixels are image rows ``row0 .. row0 + rows`` only.
     """
-    w = cam.width
-    h = cam.height if rows is None else rows
-    rows_y = row0 + jnp.arange(h, dtype=jnp.int32)
-    xs, ys = screen_to_camera(
-        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, rows_y.astype(jnp.float32) + 0.5
-    )
     # Structure of arrays, pixels last: one row gather of the face's 9 corner values
     # per pixel, then (N,) vectors.  (An (N, 3) layout with jnp.cross is ~3x slower on
     # XLA:CPU.)
-    ray = (
-        jnp.broadcast_to(xs[None, :], (h, w)).reshape(-1),
-        jnp.broadcast_to(ys[:, None], (h, w)).reshape(-1),
-        jnp.ones((h * w,), jnp.float32),
-    )
+    ray = pixel_rays(cam, row0, rows)
+    h = cam.height if rows is None else rows
+    w = cam.width
     hit = face_id != _NO_TRI
     p0 = (g[0], g[1], g[2])
     e1 = (g[3] - g[0], g[4] - g[1], g[5] - g[2])

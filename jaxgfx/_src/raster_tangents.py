@@ -28,7 +28,7 @@ import numpy as np
 
 from jaxgfx._src.camera import Camera, screen_to_camera, world_to_camera
 
-__all__ = ["cross3", "dot3", "shading_tangents"]
+__all__ = ["cross3", "dot3", "pixel_rays", "shading_tangents"]
 
 
 def cross3(a, b):
@@ -39,6 +39,26 @@ def cross3(a, b):
 def dot3(a, b):
     """Dot product of two 3-tuples of (N,) arrays (structure of arrays)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def pixel_rays(cam: Camera, row0=0, rows: int | None = None):
+    """Camera-space rays (``z = 1``) through the pixel centres of image rows ``row0 ..
+    row0 + rows`` (static ``rows``; default every row), as a structure of arrays.
+
+    Returns:
+        ``(x, y, z)``, each (rows * W,), row-major.
+    """
+    w = cam.width
+    h = cam.height if rows is None else rows
+    rows_y = row0 + jnp.arange(h, dtype=jnp.int32)
+    xs, ys = screen_to_camera(
+        cam, jnp.arange(w, dtype=jnp.float32) + 0.5, rows_y.astype(jnp.float32) + 0.5
+    )
+    return (
+        jnp.broadcast_to(xs[None, :], (h, w)).reshape(-1),
+        jnp.broadcast_to(ys[:, None], (h, w)).reshape(-1),
+        jnp.ones((h * w,), jnp.float32),
+    )
 
 
 def shading_tangents(
@@ -71,14 +91,7 @@ def shading_tangents(
     fv = jnp.take(faces, jnp.maximum(tri, 0), axis=0, mode="clip")  # (N, 3)
     corner = [fv[:, k] for k in range(3)]
     pv, t_pv = jax.jvp(world_to_camera, (cam, vertices), (t_cam, t_vertices))
-    cols = jnp.arange(w, dtype=jnp.float32) + 0.5
-    rows = jnp.arange(h, dtype=jnp.float32) + 0.5
-    (xs, ys), (t_xs, t_ys) = jax.jvp(lambda c: screen_to_camera(c, cols, rows), (cam,), (t_cam,))
-    ray = (
-        jnp.broadcast_to(xs[None, :], (h, w)).reshape(-1),
-        jnp.broadcast_to(ys[:, None], (h, w)).reshape(-1),
-        jnp.ones((h * w,), jnp.float32),
-    )
+    ray, t_ray = jax.jvp(pixel_rays, (cam,), (t_cam,))  # t_ray[2] is 0: z stays 1
     # Primal: the face's corners (1-D gathers: no (N, 3) cross products, slow on XLA:CPU).
     p = [tuple(jnp.take(pv[:, a], c, mode="clip") for a in range(3)) for c in corner]
     e1 = tuple(p[1][a] - p[0][a] for a in range(3))
@@ -98,10 +111,6 @@ def shading_tangents(
     # Linear: the bary-weighted motion of the corners, less the ray's, then M^-1.
     t_p = [jnp.take(t_pv, c, axis=0, mode="clip") for c in corner]  # (N, 3) each
     moved = b[:, 0:1] * t_p[0] + b[:, 1:2] * t_p[1] + b[:, 2:3] * t_p[2]
-    t_ray = (
-        jnp.broadcast_to(t_xs[None, :], (h, w)).reshape(-1),
-        jnp.broadcast_to(t_ys[:, None], (h, w)).reshape(-1),
-    )
     d_x = (moved[:, 0] - t * t_ray[0], moved[:, 1] - t * t_ray[1], moved[:, 2])
     dt, du, dv = dot3(m_t, d_x), dot3(m_u, d_x), dot3(m_v, d_x)
     t_bary = jnp.stack([-du - dv, du, dv], axis=-1)
