@@ -131,12 +131,12 @@ def test_antialias_batch_is_one_vectorized_program(mesh, cams):
     def image(cam):
         return silhouette.analytic_antialias(cam, v, f, rasterize(cam, v, f, v), edges=edges)
 
-    # Beyond rasterize's: per pair axis (horizontal, vertical), the outline walks left after
-    # the first face, a chunk of walks at a time (at most ceil(n / max(1, n // 16)) chunks
-    # for n pixel pairs: 17 from 256 pairs on), and each chunk's hops (at most MAX_HOPS).
+    # Beyond rasterize's: the pool of outline walks (one step per face crossed by its lanes,
+    # until the queue of candidate pairs is empty) and the blends of outline pairs beyond the
+    # first block (none unless outlines fill more than 1/32 of the pair slots).
     # The batch is vectorized on every platform: the CPU's frame loop is rasterize's.
-    cpu = _pin(image, (_first(cams),), (cams,), loops=RASTER_LOOPS + 4, cpu_frame_loop=FRAME_LOOP)
-    assert cpu == RASTER_LOOPS + STRIPES + 4
+    cpu = _pin(image, (_first(cams),), (cams,), loops=RASTER_LOOPS + 2, cpu_frame_loop=FRAME_LOOP)
+    assert cpu == RASTER_LOOPS + STRIPES + 2
 
 
 def test_render_rle_batch_has_one_frames_loops():

@@ -9,6 +9,7 @@ render (the image must be continuous there for the two to agree).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 
 import jax
@@ -18,6 +19,8 @@ import pytest
 import trimesh
 from scipy.spatial import ConvexHull
 
+from jaxgfx._src.outline_walk import near_silhouettes
+from jaxgfx._src.silhouette import _walk_frame
 from jaxgfx.camera import (
     camera_basis,
     camera_from_degrees,
@@ -509,3 +512,62 @@ def test_a_gap_narrower_than_a_pixel_shows_the_background():
     # Without a background colour, the front outline blends towards the other pixel's colour.
     without, _ = _render(cam, v, f, c, e)
     np.testing.assert_allclose(np.asarray(without)[6:24, 19:21, 0], 1.0, atol=1e-6)
+
+
+# --- Which pairs walk: the culling near silhouette edges -------------------------------------
+# A torus seen obliquely: its inner rim hides part of the far side, so outlines run inside the
+# covered area as well as around it, and its faces are about a pixel wide.  SW x SH, as the
+# sphere's frames.
+TORUS = trimesh.creation.torus(
+    major_radius=0.6, minor_radius=0.25, major_sections=48, minor_sections=24
+)
+TORUS_V = np.asarray(TORUS.vertices, np.float32)
+TORUS_F = np.asarray(TORUS.faces, np.int32)
+TORUS_CAM = look_at([0.0, 0.8, -1.6], [0.0, 0.0, 0.0], 50.0, SW, SH)
+
+
+@functools.partial(jax.jit, static_argnames="cull")
+def _crossed_edges(cam, v, f, e, cull):
+    """Per pair slot, the face and edge (3 face + edge) whose outline its walk crossed, or -1,
+    and how many pairs were walked."""
+    out = rasterize(cam, v, f)
+    found, _ = _walk_frame(cam, v, f, e, out.tri_id, out.depth, background=True, cull=cull)
+    q = found.pairs.shape[0]
+    crossed = jnp.where(found.face >= 0, 3 * found.face + found.edge, -1)
+    per_pair = jnp.full((2, q), -1, jnp.int32).at[:, found.pairs].set(crossed, mode="drop")
+    walked = jnp.sum(found.pairs < q)
+    return per_pair, walked
+
+
+def test_culled_pairs_cross_no_outline():
+    edges = silhouette_edges(TORUS_F)
+    culled, walked = _crossed_edges(TORUS_CAM, TORUS_V, TORUS_F, edges, cull=True)
+    every, all_walked = _crossed_edges(TORUS_CAM, TORUS_V, TORUS_F, edges, cull=False)
+    # The culling leaves pairs out (half of them here; else this checks nothing), and every
+    # walk from the front pixel and back from the other finds the same edge as without it.
+    assert int(walked) < 0.7 * int(all_walked)
+    assert (np.asarray(every)[0] >= 0).sum() > 300
+    np.testing.assert_array_equal(np.asarray(culled), np.asarray(every))
+
+
+@functools.partial(jax.jit, static_argnames="shape")
+def _near(onward, faces, screen, z, shape):
+    return near_silhouettes(onward, faces, screen, z, shape)
+
+
+def test_near_silhouettes_marks_the_reach_of_each_silhouette_face():
+    faces = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    screen = np.array([[10.0, 10.0], [12.0, 10.0], [12.0, 11.0], [200.0, 5.0]], np.float32)
+    z = np.ones(4, np.float32)
+    # Face 0 holds a silhouette edge, face 1 none: only face 0's box (grown by the reach, in
+    # 4-pixel tiles) is marked.
+    onward = np.array([[-1, 1, 1], [0, 0, 0]], np.int32)
+    near = np.asarray(_near(onward, faces, screen, z, (24, 32)))
+    assert near[10, 10] and near[10, 12] and near[11, 8]
+    assert not near[20, 20] and not near[5, 30] and near.mean() < 0.2
+    # A silhouette face with a corner behind the eye plane has no bounded projection.
+    behind = z.copy()
+    behind[2] = -0.5
+    assert np.asarray(_near(onward, faces, screen, behind, (24, 32))).all()
+    # No silhouette edge, no walks.
+    assert not np.asarray(_near(np.zeros_like(onward), faces, screen, z, (24, 32))).any()

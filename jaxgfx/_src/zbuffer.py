@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, focal_lengths, world_to_camera_soa
+from jaxgfx._src.compaction import running_sum
 from jaxgfx._src.frames import check_batching, per_frame
 
 __all__ = [
@@ -289,16 +290,10 @@ def _count_le(sorted_x, q):
     return jax.lax.fori_loop(0, levels, halve, jnp.zeros(q.shape, jnp.int32))
 
 
-def _prefix_sum(x):
-    """Inclusive prefix sum, exact for ints: ``jnp.cumsum`` is a reduce-window on XLA:CPU,
-    several times slower for the work list's lengths."""
-    return jax.lax.associative_scan(jnp.add, x) if x.shape[0] else x
-
-
 def _work_list(nblocks):
     """Where each triangle's work items (tiles) start and end in the work list, and how
     many items there are: ``(starts, offsets, total)`` (``offsets`` inclusive)."""
-    offsets = _prefix_sum(nblocks)
+    offsets = running_sum(nblocks)
     total = offsets[-1] if nblocks.shape[0] else jnp.int32(0)
     return offsets - nblocks, offsets, total
 
