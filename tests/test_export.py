@@ -134,8 +134,11 @@ def test_antialias_batch_is_one_vectorized_program(mesh, cams):
     # Beyond rasterize's: the pool of outline walks (one step per face crossed by its lanes,
     # until the queue of candidate pairs is empty) and the blends of outline pairs beyond the
     # first block (none unless outlines fill more than 1/32 of the pair slots).
-    # The batch is vectorized on every platform: the CPU's frame loop is rasterize's.
-    cpu = _pin(image, (_first(cams),), (cams,), loops=RASTER_LOOPS + 2, cpu_frame_loop=FRAME_LOOP)
+    # The batch is vectorized on accelerators; the CPU runs the frames of rasterize and of
+    # the walks one after the other (a frames loop each).
+    cpu = _pin(
+        image, (_first(cams),), (cams,), loops=RASTER_LOOPS + 2, cpu_frame_loop=2 * FRAME_LOOP
+    )
     assert cpu == RASTER_LOOPS + STRIPES + 2
 
 

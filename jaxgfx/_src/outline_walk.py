@@ -31,6 +31,7 @@ from jaxgfx._src.compaction import compact, running_sum
 __all__ = [
     "MAX_HOPS",
     "OutlineHits",
+    "edge_plane",
     "edge_planes",
     "find_outlines",
     "front_is_a",
@@ -107,6 +108,19 @@ def edge_planes(p_cam, faces, across):
         normals += [mx, my, mz]
         onward.append(jnp.where((across[:, e] < 0) | folds, -1, other[:, e] // 3))
     return jnp.stack(normals, 1), jnp.stack(onward, 1).astype(jnp.int32)
+
+
+def edge_plane(p_cam, faces, face, edge):
+    """(N, 3): the normal of :func:`edge_planes` for edge ``edge`` of face ``face`` alone.
+
+    The blends recompute the few crossed edges' planes with gradients, from their corners,
+    rather than differentiate the table of every face's.
+    """
+    corners = p_cam[faces[jnp.maximum(face, 0)]]  # (N, 3, 3)
+    rows = jnp.arange(face.shape[0])
+    p, q, k = (corners[rows, (edge + i) % 3] for i in range(3))
+    n = jnp.cross(p, q)
+    return jnp.sign(jnp.sum(n * k, -1))[:, None] * n
 
 
 def _hop(nrm, nxt_all, face, target, ray, step):

@@ -73,6 +73,8 @@ surfaces intersect.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -86,7 +88,9 @@ from jaxgfx._src.camera import (
     world_to_camera,
 )
 from jaxgfx._src.checks import require_finite, require_indices
+from jaxgfx._src.frames import per_frame
 from jaxgfx._src.outline_walk import (
+    edge_plane,
     edge_planes,
     find_outlines,
     front_is_a,
@@ -174,16 +178,6 @@ _LANE_SHARE = 64
 _MIN_LANES = 256
 
 
-def _edge_plane(p_cam, faces, face, edge):
-    """(N, 3): the inward eye-plane normal of edge ``edge`` of face ``face`` (as
-    :func:`~jaxgfx._src.outline_walk.edge_planes`), with gradients, for the listed pairs only."""
-    corners = p_cam[faces[jnp.maximum(face, 0)]]  # (N, 3, 3)
-    rows = jnp.arange(face.shape[0])
-    p, q, k = (corners[rows, (edge + i) % 3] for i in range(3))
-    n = jnp.cross(p, q)
-    return jnp.sign(jnp.sum(n * k, -1))[:, None] * n
-
-
 def _crossing(plane, ray, direction, found, axis, focal):
     """Where the segment ``ray + t direction`` crosses an edge's plane, and the blend's weight.
 
@@ -245,7 +239,7 @@ def _outline_deltas(found, slots, frame, color, background):
         return jnp.stack([xs[px % width], ys[px // width], jnp.ones(px.shape, xs.dtype)], -1)
 
     step = jnp.where(a_front[:, None], steps[axis], -steps[axis])
-    plane = _edge_plane(p_cam, faces, found.face[0, slot], found.edge[0, slot])
+    plane = edge_plane(p_cam, faces, found.face[0, slot], found.edge[0, slot])
     t_f, w_f = _crossing(plane, ray(near), step, listed, axis, focal)
     col_f, col_o = color[near], color[far]
     if background is None:
@@ -254,7 +248,7 @@ def _outline_deltas(found, slots, frame, color, background):
         # The back surface's outline, where both pixels are covered: if it shows beyond the
         # front's, a gap between them shows the background.
         back = found.face[1, slot]
-        plane_o = _edge_plane(p_cam, faces, back, found.edge[1, slot])
+        plane_o = edge_plane(p_cam, faces, back, found.edge[1, slot])
         t_o, w_o = _crossing(plane_o, ray(far), -step, listed & (back >= 0), axis, focal)
         gap = (w_f > 0) & (w_o > 0) & (t_f + t_o < 1.0)
         bg = jnp.broadcast_to(background, col_f.shape)
@@ -360,6 +354,14 @@ def analytic_antialias(
     )
 
 
+@functools.cache
+def _walks_kernel(background: bool, lanes: int):
+    """:func:`~jaxgfx._src.outline_walk.find_outlines` of one frame, batched frame by frame on
+    the CPU (its pool runs each frame's own steps, on cache-sized buffers) and vectorized
+    elsewhere (:func:`~jaxgfx._src.frames.per_frame`); built once per configuration."""
+    return per_frame(functools.partial(find_outlines, background=background, lanes=lanes))
+
+
 def _walk_frame(cam, vertices, faces, across, tri, depth, *, background: bool, cull: bool = True):
     """The frame's rays and planes, and the walks of its candidate pairs.
 
@@ -395,10 +397,8 @@ def _walk_frame(cam, vertices, faces, across, tri, depth, *, background: bool, c
         if cull
         else jnp.ones((h, w), bool)
     )
-    found = find_outlines(
-        normals, onward, near, tri, depth, rays, sg(steps), background=background,
-        lanes=max(_MIN_LANES, 2 * h * w // _LANE_SHARE),
-    )  # fmt: skip
+    walks = _walks_kernel(background, max(_MIN_LANES, 2 * h * w // _LANE_SHARE))
+    found = walks(normals, onward, near, tri, depth, rays, sg(steps))
     frame = (p_cam, faces, tri.reshape(-1), depth.reshape(-1), xs, ys, steps, (fx, fy))
     return found, frame
 
