@@ -565,6 +565,12 @@ def test_near_silhouettes_marks_the_reach_of_each_silhouette_face():
     near = np.asarray(_near(onward, faces, screen, z, (24, 32)))
     assert near[10, 10] and near[10, 12] and near[11, 8]
     assert not near[20, 20] and not near[5, 30] and near.mean() < 0.2
+    # A corner just in front of the eye projects far off screen (beyond int32): the box still
+    # reaches the frame's edge.
+    far = screen.copy()
+    far[1] = [1e12, 10.0]
+    reach = np.asarray(_near(onward, faces, far, z, (24, 32)))
+    assert reach[10, 31] and reach[11, 20] and not reach[20, 20]
     # A silhouette face with a corner behind the eye plane has no bounded projection.
     behind = z.copy()
     behind[2] = -0.5
