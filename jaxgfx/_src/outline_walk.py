@@ -169,10 +169,10 @@ def pair_pixels(pair, width: int, pixels: int):
     return a, a + jnp.where(axis == 1, width, 1), axis
 
 
-def front_is_a(tri, depth, a, b):
-    """Whether pixel ``a`` of each pair holds the front surface (an empty pixel never does)."""
-    ta, tb = tri[a], tri[b]
-    return (ta >= 0) & ((tb < 0) | (depth[a] <= depth[b]))
+def front_is_a(tri_a, tri_b, depth_a, depth_b):
+    """Whether pixel ``a`` of each pair holds the front surface (an empty pixel never does),
+    from the two pixels' triangle ids and depths."""
+    return (tri_a >= 0) & ((tri_b < 0) | (depth_a <= depth_b))
 
 
 # Faces each lane crosses between refills (the refill's running sums and scatters are the
@@ -252,8 +252,8 @@ def _walk_start(job, pairs, tri, depth, rays, steps, width: int):
     """
     pixels = tri.shape[0]
     a, b, axis = pair_pixels(pairs[job >> 1], width, pixels)
-    from_a = front_is_a(tri, depth, a, b) == ((job & 1) == 0)
     ta, tb = tri[a], tri[b]
+    from_a = front_is_a(ta, tb, depth[a], depth[b]) == ((job & 1) == 0)
     step = steps[axis]
     return (
         jnp.where(from_a, ta, tb),

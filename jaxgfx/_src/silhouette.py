@@ -232,7 +232,7 @@ def _outline_deltas(found, slots, frame, color, background):
     listed = slots < q
     slot = jnp.minimum(slots, q - 1)
     a, b, axis = pair_pixels(found.pairs[slot], width, pixels)
-    a_front = front_is_a(tri, depth, a, b)
+    a_front = front_is_a(tri[a], tri[b], depth[a], depth[b])
     near, far = jnp.where(a_front, a, b), jnp.where(a_front, b, a)
 
     def ray(px):
