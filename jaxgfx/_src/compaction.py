@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["running_sum", "running_max", "compact"]
+__all__ = ["running_sum", "running_max", "compact", "short_running_sum"]
 
 
 def running_sum(x, axis: int = 0):
@@ -36,3 +36,18 @@ def compact(mask, size: int, fill):
     return (
         jnp.full((size,), fill, jnp.int32).at[at].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
     )
+
+
+def short_running_sum(x):
+    """Inclusive running sum along the last axis, short and static, by log-step shifts.
+
+    For a handful of entries per row (a column's runs, a window's slots) ``log2(n)`` shifted
+    adds are cheaper than a scan's levels of strided slices.
+    """
+    n = x.shape[-1]
+    k = 1
+    while k < n:
+        pad = jnp.zeros(x.shape[:-1] + (k,), x.dtype)
+        x = x + jnp.concatenate([pad, x[..., : n - k]], axis=-1)
+        k *= 2
+    return x

@@ -12,7 +12,6 @@ renderer (:mod:`.reference`) has its own, so that it checks this one.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -31,47 +30,6 @@ def _safe_div(a, b, eps=1e-12):
 # ---------------------------------------------------------------------------
 # Pointer map and RLE columns (4.4.6)
 # ---------------------------------------------------------------------------
-
-
-def _prefix_sum(x):
-    """Inclusive prefix sum along the last (short, static) axis by log-step shifts.
-
-    Same result as ``jnp.cumsum``, which XLA:CPU lowers to a slow reduce-window.
-    """
-    n = x.shape[-1]
-    k = 1
-    while k < n:
-        pad = jnp.zeros(x.shape[:-1] + (k,), x.dtype)
-        x = x + jnp.concatenate([pad, x[..., : n - k]], axis=-1)
-        k *= 2
-    return x
-
-
-def _running_sum(x):
-    """Inclusive prefix sum along axis 0 by an associative scan.
-
-    Same result as ``jnp.cumsum``, which XLA:CPU lowers to a slow reduce-window.
-    """
-    return jax.lax.associative_scan(jnp.add, x, axis=0)
-
-
-def _running_max(x):
-    """Inclusive running maximum along axis 0 (an associative scan)."""
-    return jax.lax.associative_scan(jnp.maximum, x, axis=0)
-
-
-def _compact(mask, size: int, fill):
-    """(size,) int32: the indices where the (n,) ``mask`` holds, ascending, then ``fill``.
-
-    ``jnp.nonzero(mask, size=size, fill_value=fill)`` by a running sum and a
-    scatter (``jnp.nonzero`` takes XLA:CPU's slow cumsum).
-    """
-    n = mask.shape[0]
-    pos = _running_sum(mask.astype(jnp.int32)) - 1
-    at = jnp.where(mask & (pos < size), pos, size)
-    return (
-        jnp.full((size,), fill, jnp.int32).at[at].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
-    )
 
 
 def _tail_slots(rle) -> int:

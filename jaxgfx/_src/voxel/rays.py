@@ -37,6 +37,7 @@ import jax.numpy as jnp
 
 from jaxgfx._src.camera import Camera, pixel_rays
 from jaxgfx._src.checks import require_finite
+from jaxgfx._src.compaction import running_sum
 from jaxgfx._src.eager import compiled_when_eager
 from jaxgfx._src.voxel.encode import RLEVolume
 from jaxgfx._src.voxel.grid import (
@@ -46,7 +47,6 @@ from jaxgfx._src.voxel.grid import (
     _element_bottoms,
     _level_tables,
     _map_column,
-    _running_sum,
 )
 
 __all__ = ["RayHits", "ColumnBounds", "column_bounds", "cast_ray", "cast_rays", "hit_normals"]
@@ -345,7 +345,7 @@ def cast_wavefront(rle: RLEVolume, bounds, origins, directions, far, width: int)
         finished = walks.done & (q.ids >= 0)
         at = jnp.where(finished, q.ids, n)
         out = jax.tree_util.tree_map(lambda o, h: o.at[at].set(h, mode="drop"), q.out, walks.hit)
-        new = q.next + _running_sum(finished.astype(jnp.int32)) - 1
+        new = q.next + running_sum(finished.astype(jnp.int32)) - 1
         take = finished & (new < n)
         ids = jnp.where(finished, jnp.where(take, new, -1), q.ids)
         safe = jnp.clip(new, 0, n - 1)

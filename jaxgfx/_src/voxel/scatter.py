@@ -54,7 +54,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
-from jaxgfx._src.voxel.grid import _cell_height, _compact, _running_sum, _tail_slots
+from jaxgfx._src.compaction import compact, running_sum
+from jaxgfx._src.voxel.grid import _cell_height, _tail_slots
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.scatter_elements import (
     _N_BITS,
@@ -420,7 +421,7 @@ def scatter_ray_buffer(
                 later = w.r_incl - w.n_rows >= rs
                 hidden = later & _hidden(s.key, w.n_rows, w.key, w.texel0, rows=rows)
                 n_rows = jnp.where(hidden, 0, w.n_rows)
-                return w._replace(n_rows=n_rows, r_incl=_running_sum(n_rows))
+                return w._replace(n_rows=n_rows, r_incl=running_sum(n_rows))
 
             # A new window's pairs are tested against the windows before; so
             # are a window's pairs not begun yet while it has more than this
@@ -463,10 +464,10 @@ def scatter_ray_buffer(
         # work is the window's, not the scene's.
         has = n_pairs > 0
         live = jnp.arange(E) < jnp.sum(has.astype(jnp.int32))
-        order = draw[_compact(has[draw], E, 0)]
+        order = draw[compact(has[draw], E, 0)]
         order = jnp.concatenate([order, pad])
         n_c = jnp.concatenate([jnp.where(live, n_pairs[order[:E]], 0), pad])
-        incl = _running_sum(n_c)
+        incl = running_sum(n_c)
         first_pair = incl - n_c
         total = incl[-1]
         body = window_step(ce, ids, p_lo, offset, order, first_pair, incl, total, planes_g[order])

@@ -22,13 +22,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera
+from jaxgfx._src.compaction import running_max, running_sum
 from jaxgfx._src.voxel.grid import (
     _cell_height,
     _column_head,
     _column_runs,
     _level_tables,
-    _running_max,
-    _running_sum,
     _tail_slots,
 )
 from jaxgfx._src.voxel.scatter_planes import (
@@ -87,7 +86,7 @@ def _slot_runs(first, nonempty, head, start, size: int):
         .at[0]
         .max(head)
     )
-    return _running_max(mark)
+    return running_max(mark)
 
 
 def _object_elements(rle, cam: Camera):
@@ -109,7 +108,7 @@ def _object_elements(rle, cam: Camera):
         # Columns sharing a stored tail (share_columns): each column's tail is
         # enumerated for it, the columns' tails back to back.
         tails = jnp.maximum(cnt - 1, 0)
-        start = _running_sum(tails) - tails
+        start = running_sum(tails) - tails
     # Tail slot i lies in the run of the column whose first slot is the last at or before it.
     owner = jnp.clip(_slot_runs(start, cnt >= 2, 0, 0, NT), 0, C - 1)
     col = jnp.concatenate([jnp.arange(C, dtype=jnp.int32), owner])
@@ -181,7 +180,7 @@ def _tile_levels(rle, cam: Camera, pl: _Planes, obj: _Elements) -> _TileLevels:
     # The object's elements by level, by counting (XLA:CPU sorts slowly).
     lev_e = obj.cell >> (2 * _XZ_BITS)
     of_level = (lev_e[:, None] == jnp.arange(L)[None, :]) & (obj.n_pairs > 0)[:, None]
-    rank = _running_sum(of_level.astype(jnp.int32))
+    rank = running_sum(of_level.astype(jnp.int32))
     per_level = rank[-1]
     start = jnp.cumsum(per_level) - per_level
     N = lev_e.shape[0]
@@ -190,7 +189,7 @@ def _tile_levels(rle, cam: Camera, pl: _Planes, obj: _Elements) -> _TileLevels:
     by_level = jnp.zeros((N,), jnp.int32).at[at].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
     has = jnp.asarray(rle.tiles).reshape(-1)[tile] >= 0
     count = jnp.where(has & (n1 + n2 > 0), per_level[lev], 0)
-    incl = _running_sum(count)
+    incl = running_sum(count)
     return _TileLevels(
         tile=tile, lev=lev, first=incl - count, incl=incl, order=by_level, start=start
     )

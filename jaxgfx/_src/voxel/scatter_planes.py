@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
-from jaxgfx._src.voxel.grid import _running_sum
+from jaxgfx._src.compaction import running_sum
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.walk import _cell_exit, _once, _plane_init
 from jaxgfx._src.voxel.wide import _once_f
@@ -159,7 +159,7 @@ def _plane_buckets(angle, n_live):
     frame = jnp.stack([a_lo, scale, a_hi]).astype(jnp.float32)
     k = _bucket_of(frame, angle, B)
     counts = jnp.zeros((B,), jnp.int32).at[jnp.where(live, k, B)].add(1, mode="drop")
-    bucket = jnp.concatenate([jnp.zeros((1,), jnp.int32), _running_sum(counts)])
+    bucket = jnp.concatenate([jnp.zeros((1,), jnp.int32), running_sum(counts)])
     steps = 32 - jax.lax.clz(jnp.max(counts))  # bit length: ceil(log2(count + 1))
     return bucket, frame, steps
 

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgfx._src.camera import Camera, camera_basis
+from jaxgfx._src.compaction import short_running_sum
 from jaxgfx._src.voxel.codec import ELEMENT_WORDS, NO_ENTRY, pack_drawn
 from jaxgfx._src.voxel.grid import (
     _cell_height,
@@ -44,7 +45,6 @@ from jaxgfx._src.voxel.grid import (
     _column_runs,
     _level_tables,
     _map_column,
-    _prefix_sum,
 )
 from jaxgfx._src.voxel.planes import Segments
 from jaxgfx._src.voxel.walk import (
@@ -246,11 +246,11 @@ def _wide_step(
     safe, n, draw0, bottom0 = (_once(v) for v in _column_head(rle, col, inside, sy[lev]))
     # Whole columns, as many as fit the step's element slots (M >= two columns).
     per_col = n.reshape(K, 2).sum(axis=1)
-    fits = _prefix_sum(per_col) <= M
+    fits = short_running_sum(per_col) <= M
     take = col_ok & fits
     kk = jnp.sum(take.astype(jnp.int32))
     n = jnp.where(jnp.repeat(take, 2), n, 0)
-    cum = _prefix_sum(n)
+    cum = short_running_sum(n)
     start = cum - n
     total = cum[-1]
     # Element slot -> cell: each non-empty cell marks its first slot, a running max fills.
@@ -289,7 +289,7 @@ def _wide_step(
     draw = _once(vis & fresh)
     drawn = jnp.where(draw[:, None], mask, jnp.uint32(0))
     cov_n = cov | before[-1] | mask[-1]
-    pos = state.nbuf + _prefix_sum(draw.astype(jnp.int32)) - 1
+    pos = state.nbuf + short_running_sum(draw.astype(jnp.int32)) - 1
     first = jnp.minimum(state.first, jnp.min(jnp.where(drawn != 0, pos[:, None], NO_ENTRY), axis=0))
     cbase = rle.color_ptr[e_safe].astype(jnp.int32) + drawn_before
     words = pack_drawn(r0, r1, top, bottom, cbase, g(ix), g(iz), jnp.broadcast_to(lev, (M,)))
@@ -466,7 +466,7 @@ def _walk_slots(step, consts, state0, lists0, Kb, S, max_iterations):
         fin = state.done
         dest = jnp.where(fin & (pid < P), pid, P)
         out = jax.tree_util.tree_map(lambda o, v: o.at[dest].set(v, mode="drop"), out, state)
-        rank = _prefix_sum(fin.astype(jnp.int32)) - 1
+        rank = short_running_sum(fin.astype(jnp.int32)) - 1
         q = nxt + rank
         new = jnp.where(q < n_live, queue[jnp.minimum(q, P - 1)], P)
         new = jnp.where(fin, new, pid)
