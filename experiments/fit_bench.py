@@ -32,9 +32,15 @@ compile excluded, on one device (the process's default), all jitted:
    256x192 with one camera: a black mesh before a white constant emitter renders ``1 -
    coverage``, the same L2 loss against its own render of the moved mesh; the time of a forward
    and backward at 4 samples a pixel beside ours, and the cosine between its vertex-gradient
-   field at 64 samples a pixel and ours.  Dr.Jit needs a system LLVM >= 16 (its path in
-   ``DRJIT_LIBLLVM_PATH``); without one, or without the package, the row gives the reason.  It
-   runs in a process of its own (``experiments/_mitsuba_peer.py``): a failing LLVM aborts it.
+   field at 64 samples a pixel and ours (``gradient_cosine_64spp``).  Beside it: the cosine
+   between two of its 64-sample fields at different seeds (``mitsuba_seeds_cosine``, its
+   estimate's spread), the median over vertices of the cosine between the two gradient vectors
+   (``median_vertex_cosine``: do both push each vertex the same way?), and the cosine after
+   summing each field over cubes 3 and 8 pixels wide at the orbit radius (``cosine_3px_cells``,
+   ``cosine_8px_cells``: what a parameter that moves a few pixels of outline alike sees).
+   Dr.Jit needs a system LLVM >= 16 (its path in ``DRJIT_LIBLLVM_PATH``); without one, or
+   without the package, the row gives the reason.  It runs in a process of its own
+   (``experiments/_mitsuba_peer.py``): a failing LLVM aborts it.
 
     python -m experiments.fit_bench [--quick] [--out DIR] [--rounds N]
 """
@@ -278,16 +284,47 @@ def mitsuba_row(row: dict, v, f, cam, shift, ours_ms: float, ours_grad) -> dict:
             tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
             return {**row, "skipped": f"Mitsuba's process failed: {tail[0][:200]}"}
         res = np.load(out)
-        theirs = np.asarray(res["grad"], np.float64).ravel()
-    ours = np.asarray(ours_grad, np.float64).ravel()
-    cos = float(ours @ theirs / max(np.linalg.norm(ours) * np.linalg.norm(theirs), 1e-30))
+        theirs = np.asarray(res["grad"], np.float64).reshape(-1, 3)
+        again = np.asarray(res["grad_again"], np.float64).reshape(-1, 3)
+    ours = np.asarray(ours_grad, np.float64).reshape(-1, 3)
+    pixel = RADIUS / float(focal_lengths(cam)[1])  # a pixel's size at the orbit radius
     return {
         **row,
         "mitsuba_step_ms_4spp": float(res["step_ms"]),
         "jaxgfx_step_ms": ours_ms,
         "mitsuba_over_jaxgfx": float(res["step_ms"]) / ours_ms,
-        "gradient_cosine_64spp": cos,
+        "gradient_cosine_64spp": _cosine(ours, theirs),
+        "mitsuba_seeds_cosine": _cosine(theirs, again),
+        "median_vertex_cosine": _median_vertex_cosine(ours, theirs),
+        "cosine_3px_cells": _cosine(*_cell_sums(v, 3 * pixel, ours, theirs)),
+        "cosine_8px_cells": _cosine(*_cell_sums(v, 8 * pixel, ours, theirs)),
     }
+
+
+def _cosine(a, b) -> float:
+    a, b = np.ravel(a), np.ravel(b)
+    return float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-30))
+
+
+def _median_vertex_cosine(a, b) -> float:
+    """The median over vertices where both fields are above 1/1000 of their largest of the
+    cosine between their two gradient vectors (do they push each vertex the same way?)."""
+    na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    both = (na > 1e-3 * na.max()) & (nb > 1e-3 * nb.max())
+    return float(np.median(np.sum(a[both] * b[both], 1) / (na[both] * nb[both])))
+
+
+def _cell_sums(vertices, cell: float, *fields):
+    """Each (V, 3) field summed over the vertices in each cube of side ``cell``: what a
+    parameter that moves every vertex of a cube alike sees of it."""
+    _, inv = np.unique(np.floor(np.asarray(vertices) / cell), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    out = []
+    for g in fields:
+        s = np.zeros((inv.max() + 1, 3))
+        np.add.at(s, inv, g)
+        out.append(s)
+    return out
 
 
 def mitsuba_section(name, v, f, quick) -> dict:
